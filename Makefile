@@ -1,0 +1,32 @@
+# Two commands do all the set-up (see README.md): `make run` and `make test`.
+# Each creates the virtual environment .venv when it is missing (PyPI only).
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+MAP_SOURCE ?= maps/monaco.osm.gz
+MAP_DB ?= maps/monaco.db
+
+.PHONY: run test bench map clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+$(MAP_DB): $(MAP_SOURCE) $(BIN)/.installed
+	$(BIN)/roadgraph import $(MAP_SOURCE) -o $(MAP_DB)
+
+map: $(MAP_DB)
+
+run: $(MAP_DB)
+	$(BIN)/roadgraph info $(MAP_DB)
+
+test: $(BIN)/.installed
+	$(BIN)/python -m pytest
+
+bench: $(MAP_DB)
+	$(BIN)/python bench/roadgraph_bench.py --map-source $(MAP_SOURCE)
+
+clean:
+	rm -rf $(VENV) $(MAP_DB) bench/results .pytest_cache .hypothesis

@@ -1,0 +1,166 @@
+"""RoadGraph: the read side of a map, the queries the matcher needs.
+
+Opened once from a road-graph database (:func:`RoadGraph.open`), then held in memory: its queries
+are pure and safe to share between threads. Nearest-edge queries use a shapely STRtree over
+the edges' local-metre geometry; distances and projections are exact point-to-polyline ones.
+
+Seed: Mayhew 1999, section 5.7 (the intersection mesh and the perpendicular-distance search).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import networkx as nx
+import numpy as np
+import numpy.typing as npt
+import shapely
+
+from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork
+from roadgraph.errors import RoadGraphError
+from roadgraph.geometry import FloatArray, LocalFrame, project_onto_polyline, turn_angle_rad
+from roadgraph.store import read_network
+
+
+class EdgeKey(NamedTuple):
+    """A directed edge of the MultiDiGraph: from node ``u`` to node ``v``, parallel index ``key``."""
+
+    u: int
+    v: int
+    key: int
+
+
+class NearEdge(NamedTuple):
+    """An edge found near a point, with the distance from the point to it."""
+
+    edge: EdgeKey
+    distance_m: float
+
+
+@dataclass(frozen=True)
+class EdgeProjection:
+    """A point projected onto an edge."""
+
+    edge: EdgeKey
+    offset_m: float  # along the edge from u
+    distance_m: float  # from the point to the edge
+    x_m: float  # the projected point
+    y_m: float
+    bearing_rad: float  # road direction (u → v) at the projected point
+    length_m: float  # the edge's length
+
+    @property
+    def remaining_m(self) -> float:
+        """Distance along the edge from the projected point to ``v``."""
+        return max(self.length_m - self.offset_m, 0.0)
+
+
+def _linestrings(polylines: list[FloatArray]) -> npt.NDArray[np.object_]:
+    if not polylines:
+        return np.empty(0, dtype=object)
+    indices = np.repeat(np.arange(len(polylines)), [len(c) for c in polylines])
+    return shapely.linestrings(np.vstack(polylines), indices=indices)
+
+
+class RoadGraph:
+    """An intersection graph in memory, with spatial and routing queries."""
+
+    def __init__(self, network: RoadNetwork, map_id: str = "") -> None:
+        self.map_id = map_id
+        self.info: MapInfo = network.info
+        self.frame = LocalFrame(network.info.crs_wkt)
+        self._nodes = {n.id: n for n in network.nodes}
+        self._edges = network.edges
+        self._index = {EdgeKey(e.u, e.v, e.key): i for i, e in enumerate(self._edges)}
+        self._keys = list(self._index)
+        self._lines = _linestrings([e.coords for e in self._edges])
+        self._tree = shapely.STRtree(self._lines)
+        self.graph = self._to_networkx()
+
+    @classmethod
+    def open(cls, path: Path | str) -> RoadGraph:
+        """Load a road-graph database written by ``roadgraph import``."""
+        path = Path(path)
+        return cls(read_network(path), map_id=path.stem)
+
+    def _to_networkx(self) -> nx.MultiDiGraph:
+        graph = nx.MultiDiGraph(crs=self.info.crs_wkt)
+        for n in self._nodes.values():
+            graph.add_node(n.id, x=n.x_m, y=n.y_m, lon=n.lon_deg, lat=n.lat_deg)
+        for e in self._edges:
+            graph.add_edge(e.u, e.v, key=e.key, length=e.length_m)
+        return graph
+
+    # --- records -------------------------------------------------------------------------
+    @property
+    def nodes(self) -> tuple[NodeRecord, ...]:
+        return tuple(self._nodes.values())
+
+    @property
+    def edges(self) -> tuple[EdgeRecord, ...]:
+        return self._edges
+
+    def node(self, node_id: int) -> NodeRecord:
+        return self._nodes[node_id]
+
+    def edge(self, edge: EdgeKey) -> EdgeRecord:
+        return self._edges[self._index[edge]]
+
+    def has_edge(self, edge: EdgeKey) -> bool:
+        return edge in self._index
+
+    # --- spatial -------------------------------------------------------------------------
+    def edges_near(self, x_m: float, y_m: float, radius_m: float) -> list[NearEdge]:
+        """Edges within ``radius_m`` of a point, nearest first."""
+        point = shapely.Point(x_m, y_m)
+        idx = self._tree.query(point, predicate="dwithin", distance=radius_m)
+        if idx.size == 0:
+            return []
+        dist = shapely.distance(self._lines[idx], point)
+        order = np.argsort(dist, kind="stable")
+        keys = self._keys
+        return [NearEdge(keys[i], d) for i, d in zip(idx[order].tolist(), dist[order].tolist())]
+
+    def nearest_edge(self, x_m: float, y_m: float) -> NearEdge:
+        """The single nearest edge, however far (start-up when nothing is within a radius)."""
+        point = shapely.Point(x_m, y_m)
+        i = int(self._tree.nearest(point))
+        return NearEdge(self._keys[i], float(shapely.distance(self._lines[i], point)))
+
+    def project(self, edge: EdgeKey, x_m: float, y_m: float) -> EdgeProjection:
+        """Project a point onto an edge."""
+        record = self.edge(edge)
+        p = project_onto_polyline(record.coords, x_m, y_m)
+        return EdgeProjection(edge=edge, offset_m=p.offset_m, distance_m=p.distance_m,
+                              x_m=p.x_m, y_m=p.y_m, bearing_rad=p.bearing_rad,
+                              length_m=record.length_m)
+
+    # --- topology ------------------------------------------------------------------------
+    def out_edges(self, node_id: int) -> list[EdgeRecord]:
+        """Edges leaving a node (each with its ``bearing_start_rad``)."""
+        return [self.edge(EdgeKey(u, v, k)) for u, v, k in self.graph.out_edges(node_id, keys=True)]
+
+    def in_edges(self, node_id: int) -> list[EdgeRecord]:
+        """Edges arriving at a node (each with its ``bearing_end_rad``)."""
+        return [self.edge(EdgeKey(u, v, k)) for u, v, k in self.graph.in_edges(node_id, keys=True)]
+
+    def turn_angle_rad(self, edge_in: EdgeKey, edge_out: EdgeKey) -> float:
+        """Turn from one edge into the next at their shared node: positive right, negative left."""
+        a, b = self.edge(edge_in), self.edge(edge_out)
+        if a.v != b.u:
+            raise RoadGraphError(f"edges {edge_in} and {edge_out} do not meet")
+        return turn_angle_rad(a.bearing_end_rad, b.bearing_start_rad)
+
+    def shortest_path(self, source: int, target: int) -> list[EdgeKey]:
+        """The shortest route by length from one node to another, as edges; [] when equal.
+
+        Raises :class:`networkx.NetworkXNoPath` when the target cannot be reached.
+        """
+        nodes = nx.shortest_path(self.graph, source, target, weight="length")
+        return [self._shortest_parallel(u, v) for u, v in zip(nodes[:-1], nodes[1:])]
+
+    def _shortest_parallel(self, u: int, v: int) -> EdgeKey:
+        key = min(self.graph[u][v], key=lambda k: self.graph[u][v][k]["length"])
+        return EdgeKey(u, v, key)
