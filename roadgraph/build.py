@@ -32,7 +32,9 @@ from roadgraph.geometry import (
     utm_crs_for,
 )
 
-DEFAULT_CONSOLIDATE_M = 10.0  # see bench/consolidation.py for the measurement behind it
+# The smallest tolerance that removes every junction stub (<15 m between two degree>=3 nodes)
+# on the sample map while merging fewest separate intersections: see bench/consolidation.py.
+DEFAULT_CONSOLIDATE_M = 8.0
 
 
 @dataclass(frozen=True)
@@ -133,6 +135,18 @@ def build_network(
             graph, tolerance=consolidate_m, rebuild_graph=True, dead_ends=True,
             reconnect_edges=True,
         )
+    return network_from_projected(graph, frame, network=network, consolidate_m=consolidate_m)
+
+
+def network_from_projected(
+    graph: nx.MultiDiGraph, frame: LocalFrame, *, network: str = "drive",
+    consolidate_m: float = 0.0,
+) -> RoadNetwork:
+    """Records from a MultiDiGraph already in the frame's metres.
+
+    Nodes need ``x``, ``y``; edges may carry ``geometry`` (shapely LineString, interior
+    vertices), ``osmid``, ``name``, ``highway``, ``oneway``, ``maxspeed``, ``lanes``.
+    """
     nodes = _node_records(graph, frame)
     edges = _edge_records(graph, frame)
     info = summarize(nodes, edges, frame, network=network, consolidate_m=consolidate_m)
@@ -170,7 +184,7 @@ def _edge_records(graph: nx.MultiDiGraph, frame: LocalFrame) -> tuple[EdgeRecord
             u=int(u), v=int(v), key=int(key),
             osm_way_ids=tuple(dict.fromkeys(int(i) for i in _as_list(data.get("osmid")))),
             name="; ".join(dict.fromkeys(str(n) for n in names)) or None,
-            highway=str(_as_list(data.get("highway"))[0]),
+            highway=str((_as_list(data.get("highway")) or ["road"])[0]),
             oneway=bool(data.get("oneway", False)),
             maxspeed=_first_str(data.get("maxspeed")),
             lanes=_max_int(data.get("lanes")),

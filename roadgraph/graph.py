@@ -1,8 +1,8 @@
 """RoadGraph: the read side of a map, the queries the matcher needs.
 
 Opened once from a road-graph database (:func:`RoadGraph.open`), then held in memory: its queries
-are pure and safe to share between threads. Nearest-edge queries use a shapely STRtree over
-the edges' local-metre geometry; distances and projections are exact point-to-polyline ones.
+are pure and safe to share between threads. Nearest-edge queries use a uniform grid over the
+edges' segments (:mod:`roadgraph.spatial`); distances and projections are exact.
 
 Seed: Mayhew 1999, section 5.7 (the intersection mesh and the perpendicular-distance search).
 """
@@ -14,18 +14,16 @@ from pathlib import Path
 from typing import NamedTuple
 
 import networkx as nx
-import numpy as np
-import numpy.typing as npt
-import shapely
 
-from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork
+from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork, network_from_projected
 from roadgraph.errors import RoadGraphError
-from roadgraph.geometry import FloatArray, LocalFrame, project_onto_polyline, turn_angle_rad
+from roadgraph.geometry import LocalFrame, project_onto_polyline, turn_angle_rad
+from roadgraph.spatial import SegmentGrid
 from roadgraph.store import read_network
 
 
 class EdgeKey(NamedTuple):
-    """A directed edge of the MultiDiGraph: from node ``u`` to node ``v``, parallel index ``key``."""
+    """A directed edge: from node ``u`` to node ``v``, parallel index ``key``."""
 
     u: int
     v: int
@@ -57,13 +55,6 @@ class EdgeProjection:
         return max(self.length_m - self.offset_m, 0.0)
 
 
-def _linestrings(polylines: list[FloatArray]) -> npt.NDArray[np.object_]:
-    if not polylines:
-        return np.empty(0, dtype=object)
-    indices = np.repeat(np.arange(len(polylines)), [len(c) for c in polylines])
-    return shapely.linestrings(np.vstack(polylines), indices=indices)
-
-
 class RoadGraph:
     """An intersection graph in memory, with spatial and routing queries."""
 
@@ -75,8 +66,7 @@ class RoadGraph:
         self._edges = network.edges
         self._index = {EdgeKey(e.u, e.v, e.key): i for i, e in enumerate(self._edges)}
         self._keys = list(self._index)
-        self._lines = _linestrings([e.coords for e in self._edges])
-        self._tree = shapely.STRtree(self._lines)
+        self._grid = SegmentGrid([e.coords for e in self._edges])
         self.graph = self._to_networkx()
 
     @classmethod
@@ -84,6 +74,11 @@ class RoadGraph:
         """Load a road-graph database written by ``roadgraph import``."""
         path = Path(path)
         return cls(read_network(path), map_id=path.stem)
+
+    @classmethod
+    def from_networkx(cls, graph: nx.MultiDiGraph, frame: LocalFrame) -> RoadGraph:
+        """A RoadGraph from a hand-built graph in the frame's metres (tests, synthetic maps)."""
+        return cls(network_from_projected(graph, frame), map_id=graph.graph.get("name", ""))
 
     def _to_networkx(self) -> nx.MultiDiGraph:
         graph = nx.MultiDiGraph(crs=self.info.crs_wkt)
@@ -114,20 +109,15 @@ class RoadGraph:
     # --- spatial -------------------------------------------------------------------------
     def edges_near(self, x_m: float, y_m: float, radius_m: float) -> list[NearEdge]:
         """Edges within ``radius_m`` of a point, nearest first."""
-        point = shapely.Point(x_m, y_m)
-        idx = self._tree.query(point, predicate="dwithin", distance=radius_m)
-        if idx.size == 0:
-            return []
-        dist = shapely.distance(self._lines[idx], point)
-        order = np.argsort(dist, kind="stable")
         keys = self._keys
-        return [NearEdge(keys[i], d) for i, d in zip(idx[order].tolist(), dist[order].tolist())]
+        return [NearEdge(keys[i], d) for i, d in self._grid.near(x_m, y_m, radius_m)]
 
     def nearest_edge(self, x_m: float, y_m: float) -> NearEdge:
         """The single nearest edge, however far (start-up when nothing is within a radius)."""
-        point = shapely.Point(x_m, y_m)
-        i = int(self._tree.nearest(point))
-        return NearEdge(self._keys[i], float(shapely.distance(self._lines[i], point)))
+        found = self._grid.nearest(x_m, y_m)
+        if found is None:
+            raise RoadGraphError("the road graph has no edges")
+        return NearEdge(self._keys[found[0]], found[1])
 
     def project(self, edge: EdgeKey, x_m: float, y_m: float) -> EdgeProjection:
         """Project a point onto an edge."""

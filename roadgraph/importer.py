@@ -34,7 +34,8 @@ def import_map(
     if (source is None) == (place is None and bbox is None) or (place and bbox):
         raise ValueError("give exactly one of source, place or bbox")
     check_writable(output)
-    steps = tqdm(total=3, desc="import", unit="step", disable=None if progress else True, leave=False)
+    steps = tqdm(total=3, desc="import", unit="step", leave=False,
+                 disable=None if progress else True)
     with steps:
         steps.set_postfix_str("reading OSM")
         if source is not None:

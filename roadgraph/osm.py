@@ -117,7 +117,8 @@ def download_graph(
             return ox.graph_from_bbox(bbox, network_type=network, simplify=False,
                                       retain_all=True)
     except ox._errors.InsufficientResponseError as exc:
-        raise NoDrivableRoadError(f"{what}: no drivable road found ({exc})") from exc
+        raise NoDrivableRoadError(
+            f"{what}: no such place, or no drivable road there ({exc})") from exc
     except (TypeError, ValueError) as exc:  # osmnx: geocoder found nothing or not a polygon
         raise MapSourceError(f"{what}: unknown or unusable place: {exc}") from exc
     except OSError as exc:  # requests' ConnectionError is an OSError
