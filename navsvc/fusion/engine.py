@@ -1,0 +1,473 @@
+"""FusionEngine: the multi-rate EKF of one vehicle (pure: no I/O, no clock).
+
+Seed: Mayhew 1999, chapter 5. The filter predicts at every inertial, odometer or steering
+sample with the real time step, and corrects with each sensor's measurement model
+(:mod:`navsvc.fusion.motion`). GPS arrives asynchronously (about 1 Hz) and is fused by one of
+three modes: ``ekf`` (Kalman update with chi-square gating), ``rules`` (thesis 5.4) or
+``fuzzy`` (thesis 5.5). While the odometer reads no motion for 20+ samples the vehicle is
+stationary: zero-velocity updates hold it and calibrate the gyro bias (thesis: gyro centre).
+
+Packets up to ``reorder_window_s`` late are applied in time order (the state is rolled back
+and the later packets replayed); older ones are refused with ``time_backwards``.
+
+The per-vehicle state is :class:`FusionState` (plain data); the engine owns one.
+"""
+
+from __future__ import annotations
+
+import copy
+import enum
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from navsvc.errors import ConfigError, PacketError, RejectReason
+from navsvc.fusion import kalman, motion
+from navsvc.fusion.gps_fuzzy import THESIS_SETS, FuzzySets, fuzzy_weights
+from navsvc.fusion.gps_rules import GpsAction, GpsDecision, RuleParams, decide_rules
+from navsvc.fusion.kalman import Array
+from navsvc.fusion.motion import (
+    GYRO_BIAS,
+    HEADING,
+    HEADING_RATE,
+    N_STATES,
+    ODO_SCALE,
+    SPEED,
+    X_M,
+    Y_M,
+    ProcessNoise,
+    SensorConfig,
+)
+from navsvc.types import (
+    FusedEstimate,
+    GpsFix,
+    GpsFixType,
+    GpsUsage,
+    GpsVelocity,
+    ImuSample,
+    OdometerSample,
+    Packet,
+    SteeringSample,
+)
+from roadgraph.geometry import LocalFrame, bearing_rad
+
+
+class GpsMode(enum.Enum):
+    EKF = "ekf"
+    RULES = "rules"
+    FUZZY = "fuzzy"
+
+
+_FIX_SIGMA_M = {GpsFixType.RTK: 0.05, GpsFixType.DGPS: 1.0, GpsFixType.FIX_3D: 4.0,
+                GpsFixType.FIX_2D: 8.0}
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Fusion parameters; every field may be overridden per session."""
+
+    sensors: SensorConfig = SensorConfig.GYRO_ODOMETER
+    gps_mode: GpsMode = GpsMode.EKF
+    process: ProcessNoise = ProcessNoise()
+    gyro_sigma_rps: float = 0.005  # white noise of one gyro sample
+    odometer_sigma_mps: float = 0.15  # speed from one odometer interval
+    accel_sigma_mps2: float = 0.3
+    steering_sigma_rad: float = 0.005
+    wheelbase_m: float = 2.7
+    ticks_per_m: float = 27.3  # thesis: ABS pulses per metre
+    gps_uere_m: float = 2.5  # sigma = HDOP x UERE when no accuracy_m is given
+    gps_default_sigma_m: float = 5.0
+    gps_velocity_sigma_mps: float = 0.5
+    min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
+    gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
+    reinit_after_gated_fixes: int = 10  # ekf: this many gated fixes in a row → restart from GPS
+    max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad
+    min_sats: int = 3  # thesis validity: fewer than 3 satellites is bad
+    stationary_after_samples: int = 20  # thesis: odometer zero for 20+ samples
+    initial_heading_min_move_m: float = 5.0  # heading from two fixes this far apart
+    reorder_window_s: float = 0.25
+    output_interval_s: float = 1.0  # emit an estimate at least this often (GPS outages)
+    max_step_s: float = 0.1  # longer gaps are propagated in steps of this size
+    initial_gyro_bias_sigma_rps: float = 0.02
+    initial_odo_scale_sigma: float = 0.05
+    rules: RuleParams = RuleParams()
+    fuzzy: FuzzySets = THESIS_SETS
+
+    def __post_init__(self) -> None:
+        positive = ("gyro_sigma_rps", "odometer_sigma_mps", "accel_sigma_mps2", "wheelbase_m",
+                    "ticks_per_m", "gps_uere_m", "gps_default_sigma_m", "max_step_s",
+                    "output_interval_s", "gps_gate_scale")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ConfigError(f"{name} must be a finite number > 0, got {value}")
+        if self.reorder_window_s < 0.0:
+            raise ConfigError(f"reorder_window_s must be >= 0, got {self.reorder_window_s}")
+
+
+@dataclass
+class FusionState:
+    """Everything one vehicle's filter remembers (plain data, owned by the session)."""
+
+    x: Array = field(default_factory=lambda: np.zeros(N_STATES))
+    P: Array = field(default_factory=lambda: np.eye(N_STATES))
+    t: float | None = None  # time of x
+    initialized: bool = False
+    first_fix: tuple[float, float, float] | None = None  # (t, x, y) awaiting a heading
+    last_odo: tuple[float, float] | None = None  # (t, cumulative distance m)
+    still_samples: int = 0
+    accel_fwd_mps2: float | None = None  # last forward acceleration (configs 3 and 4)
+    gated_fixes: int = 0  # consecutive GPS fixes not fused
+    last_gps_t: float | None = None
+    last_output_t: float | None = None
+    gps: GpsUsage | None = None
+    late_rejected: int = 0
+
+
+class FusionEngine:
+    """One vehicle's filter. ``add`` a packet, get the estimates it produced."""
+
+    def __init__(self, config: FusionConfig = FusionConfig(),
+                 frame: LocalFrame | None = None) -> None:
+        self.config = config
+        self.frame = frame
+        self.state = FusionState()
+        self._history: deque[tuple[Packet, FusionState]] = deque()
+
+    # --- public --------------------------------------------------------------------------
+    def add(self, packet: Packet) -> list[FusedEstimate]:
+        """Apply one packet in time order; return the estimates it emitted (GPS epochs, ticks).
+
+        Raises :class:`PacketError` (``time_backwards``) for a packet older than the window.
+        """
+        t_now = self.state.t
+        if t_now is None or packet.t >= t_now:
+            return self._apply_logged(packet)
+        if packet.t < t_now - self.config.reorder_window_s or not self._history \
+                or packet.t < self._history[0][0].t:
+            self.state.late_rejected += 1
+            raise PacketError(RejectReason.TIME_BACKWARDS,
+                              f"t={packet.t} is {t_now - packet.t:.3f} s before the latest "
+                              f"packet (window {self.config.reorder_window_s} s)")
+        return self._replay_with(packet)
+
+    def estimate(self) -> FusedEstimate | None:
+        """The current estimate, or None before initialisation."""
+        return self._estimate() if self.state.initialized else None
+
+    def correct(self, z: Array, h: Array, H: Array, R: Array) -> bool:
+        """Apply an external measurement (map feedback); False when it fails the gate."""
+        if not self.state.initialized:
+            return False
+        y, S, nis = kalman.innovation(z, h, H, self.state.P, R)
+        if not kalman.gate(nis, len(z)):
+            return False
+        self.state.x, self.state.P = kalman.update(self.state.x, self.state.P, y, S, H, R)
+        self._history.clear()  # an external correction cannot be replayed
+        return True
+
+    # --- ordering ------------------------------------------------------------------------
+    def _apply_logged(self, packet: Packet) -> list[FusedEstimate]:
+        if self.config.reorder_window_s > 0.0:
+            self._history.append((packet, _snapshot(self.state)))
+            horizon = packet.t - self.config.reorder_window_s
+            while self._history and self._history[0][0].t < horizon:
+                self._history.popleft()
+        return self._apply(packet)
+
+    def _replay_with(self, late: Packet) -> list[FusedEstimate]:
+        entries = list(self._history)
+        i = next(k for k, (p, _) in enumerate(entries) if p.t > late.t)
+        self.state = _snapshot(entries[i][1])
+        late_count = self.state.late_rejected
+        for _ in range(len(entries) - i):
+            self._history.pop()
+        out = self._apply_logged(late)
+        for p, _ in entries[i:]:
+            self._apply_logged(p)  # outputs of replayed packets were already emitted
+        self.state.late_rejected = late_count
+        return out
+
+    # --- one packet ----------------------------------------------------------------------
+    def _apply(self, packet: Packet) -> list[FusedEstimate]:
+        s = self.state
+        if not s.initialized:
+            if isinstance(packet, GpsFix):
+                self._try_initialize(packet)
+                return [self._estimate()] if s.initialized else []
+            self._remember_odometer(packet)
+            return []
+        self._propagate_to(packet.t)
+        if isinstance(packet, GpsFix):
+            self._fuse_gps(packet)
+            s.last_output_t = packet.t
+            return [self._estimate()]
+        if isinstance(packet, GpsVelocity):
+            self._fuse_gps_velocity(packet)
+        else:
+            self._fuse_dead_reckoning(packet)
+        if s.last_output_t is None or packet.t - s.last_output_t >= self.config.output_interval_s:
+            s.last_output_t = packet.t
+            return [self._estimate()]
+        return []
+
+    def _propagate_to(self, t: float) -> None:
+        s, cfg = self.state, self.config
+        assert s.t is not None
+        remaining = t - s.t
+        accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
+        while remaining > 1e-9:
+            dt = min(remaining, cfg.max_step_s)
+            s.x, F, Q = motion.propagate(s.x, dt, accel, cfg.process)
+            s.P = kalman.predict(s.x, s.P, F, Q)
+            remaining -= dt
+        s.t = max(s.t, t)
+
+    def _update(self, m: motion.Measurement, gate_dof: int | None = None) -> float | None:
+        """Kalman update; with ``gate_dof``, refuse (return None) past the chi-square gate."""
+        z, h, H, R = m
+        y, S, nis = kalman.innovation(z, h, H, self.state.P, R)
+        if gate_dof is not None and not kalman.gate(nis, gate_dof, self.config.gps_gate_scale):
+            return None
+        self.state.x, self.state.P = kalman.update(self.state.x, self.state.P, y, S, H, R)
+        self.state.x[HEADING] %= 2.0 * math.pi
+        return nis
+
+    # --- dead reckoning ------------------------------------------------------------------
+    def _fuse_dead_reckoning(self, packet: Packet) -> None:
+        cfg, x = self.config, self.state.x
+        if isinstance(packet, ImuSample):
+            if packet.yaw_rate_rps is not None and cfg.sensors != SensorConfig.STEERING_ODOMETER:
+                self._update(motion.gyro_rate(x, packet.yaw_rate_rps, cfg.gyro_sigma_rps))
+            if packet.accel_fwd_mps2 is not None:
+                self.state.accel_fwd_mps2 = packet.accel_fwd_mps2
+            if packet.accel_left_mps2 is not None and \
+                    cfg.sensors == SensorConfig.GYRO_TWO_ACCELS:
+                self._update(motion.lateral_accel(self.state.x, packet.accel_left_mps2,
+                                                  cfg.accel_sigma_mps2))
+        elif isinstance(packet, OdometerSample):
+            self._fuse_odometer(packet)
+        elif isinstance(packet, SteeringSample) and \
+                cfg.sensors == SensorConfig.STEERING_ODOMETER:
+            self._update(motion.steering_rate(x, packet.angle_rad, cfg.wheelbase_m,
+                                              cfg.steering_sigma_rad))
+
+    def _fuse_odometer(self, packet: OdometerSample) -> None:
+        cfg, s = self.config, self.state
+        speed = self._odometer_speed(packet)
+        if speed is None or cfg.sensors.speed_from_accel:
+            return
+        s.still_samples = s.still_samples + 1 if speed == 0.0 else 0
+        if s.still_samples >= cfg.stationary_after_samples:
+            self._update(motion.zero_motion(s.x))
+        else:
+            self._update(motion.odometer_speed(s.x, speed, cfg.odometer_sigma_mps))
+
+    def _odometer_speed(self, packet: Packet) -> float | None:
+        """Speed from a speed reading, or from the change of cumulative distance or ticks."""
+        if not isinstance(packet, OdometerSample):
+            return None
+        if packet.speed_mps is not None:
+            return packet.speed_mps
+        distance = packet.distance_m if packet.distance_m is not None \
+            else (packet.ticks or 0) / self.config.ticks_per_m
+        last, self.state.last_odo = self.state.last_odo, (packet.t, distance)
+        if last is None or packet.t <= last[0]:
+            return None
+        return max(distance - last[1], 0.0) / (packet.t - last[0])
+
+    def _remember_odometer(self, packet: Packet) -> None:
+        self._odometer_speed(packet)
+        self.state.t = packet.t if self.state.t is None else max(self.state.t, packet.t)
+
+    # --- GPS -----------------------------------------------------------------------------
+    def _gps_ok(self, fix: GpsFix) -> str | None:
+        """Why a fix is bad (thesis validity rules), or None when it is good."""
+        cfg = self.config
+        if not fix.status_ok:
+            return "receiver status bad"
+        if fix.fix == GpsFixType.NONE:
+            return "no fix"
+        if fix.sats is not None and fix.sats < cfg.min_sats:
+            return f"{fix.sats} satellites (< {cfg.min_sats})"
+        if fix.hdop is not None and fix.hdop > cfg.max_hdop:
+            return f"HDOP {fix.hdop:g} (> {cfg.max_hdop:g})"
+        return None
+
+    def _gps_sigma_m(self, fix: GpsFix) -> float:
+        cfg = self.config
+        if fix.accuracy_m is not None and fix.accuracy_m > 0.0:
+            return fix.accuracy_m
+        if fix.hdop is not None and fix.hdop > 0.0:
+            return fix.hdop * cfg.gps_uere_m
+        if fix.fix in _FIX_SIGMA_M:
+            return _FIX_SIGMA_M[fix.fix]
+        return cfg.gps_default_sigma_m
+
+    def _local(self, fix: GpsFix) -> tuple[float, float]:
+        if self.frame is None:
+            self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
+        return self.frame.to_local(fix.lon_deg, fix.lat_deg)
+
+    def _try_initialize(self, fix: GpsFix) -> None:
+        s, cfg = self.state, self.config
+        bad = self._gps_ok(fix)
+        s.t = fix.t if s.t is None else max(s.t, fix.t)
+        if bad is not None:
+            s.gps = GpsUsage(False, 0.0, bad)
+            return
+        east, north = self._local(fix)
+        heading, speed = None, fix.speed_mps
+        if fix.heading_rad is not None and (fix.speed_mps or 0.0) >= \
+                cfg.min_speed_for_gps_heading_mps:
+            heading = fix.heading_rad
+        elif s.first_fix is not None and fix.t > s.first_fix[0]:
+            t0, e0, n0 = s.first_fix
+            moved = math.hypot(east - e0, north - n0)
+            if moved >= cfg.initial_heading_min_move_m:
+                heading = bearing_rad(e0, n0, east, north)
+                speed = speed if speed is not None else moved / (fix.t - t0)
+        if heading is None:
+            if s.first_fix is None or math.hypot(east - s.first_fix[1],
+                                                 north - s.first_fix[2]) > 50.0:
+                s.first_fix = (fix.t, east, north)
+            s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
+            return
+        self._reset_from_gps(fix, east, north, heading, speed or 0.0)
+        s.initialized = True
+        s.gps = GpsUsage(True, 1.0, "initialised from GPS")
+
+    def _reset_from_gps(self, fix: GpsFix, east: float, north: float, heading: float | None,
+                        speed: float | None) -> None:
+        s, cfg = self.state, self.config
+        sigma = self._gps_sigma_m(fix)
+        s.x[X_M], s.x[Y_M] = east, north
+        s.P[[X_M, Y_M], :] = 0.0
+        s.P[:, [X_M, Y_M]] = 0.0
+        s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma ** 2
+        if heading is not None:
+            s.x[HEADING] = heading % (2.0 * math.pi)
+            _reset_variance(s.P, HEADING, math.radians(10.0) ** 2)
+        if speed is not None:
+            s.x[SPEED] = speed
+            _reset_variance(s.P, SPEED, 1.0)
+        if not s.initialized:
+            s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, 0.0, 1.0
+            for i, var in ((HEADING_RATE, 0.1 ** 2),
+                           (GYRO_BIAS, cfg.initial_gyro_bias_sigma_rps ** 2),
+                           (ODO_SCALE, cfg.initial_odo_scale_sigma ** 2),
+                           (motion.ACCEL_BIAS, 0.1 ** 2)):
+                _reset_variance(s.P, i, var)
+        s.gated_fixes = 0
+
+    def _fuse_gps(self, fix: GpsFix) -> None:
+        s = self.state
+        dt = fix.t - s.last_gps_t if s.last_gps_t is not None else 1.0
+        s.last_gps_t = fix.t
+        bad = self._gps_ok(fix)
+        if bad is not None:
+            s.gps = GpsUsage(False, 0.0, bad)
+            return
+        if self.config.gps_mode == GpsMode.EKF:
+            self._fuse_gps_ekf(fix)
+        else:
+            self._fuse_gps_weighted(fix, dt)
+
+    def _fuse_gps_ekf(self, fix: GpsFix) -> None:
+        s, cfg = self.state, self.config
+        east, north = self._local(fix)
+        sigma = self._gps_sigma_m(fix)
+        nis = self._update(motion.gps_position(s.x, east, north, sigma), gate_dof=2)
+        if nis is None:
+            s.gated_fixes += 1
+            if s.gated_fixes >= cfg.reinit_after_gated_fixes:
+                self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
+                s.gps = GpsUsage(True, 1.0, "re-initialised: estimate far from GPS too long")
+            else:
+                s.gps = GpsUsage(False, 0.0, "gated: innovation too large")
+            return
+        s.gated_fixes = 0
+        heading = self._gps_heading(fix)
+        if heading is not None and fix.speed_mps is not None:
+            self._update(motion.gps_velocity(s.x, fix.speed_mps, heading,
+                                             cfg.gps_velocity_sigma_mps), gate_dof=2)
+        elif cfg.sensors == SensorConfig.GPS_ONLY and fix.speed_mps is not None \
+                and fix.speed_mps < 0.5:
+            self._update(motion.zero_motion(s.x, sigma_mps=0.3, sigma_rps=0.05))
+        s.gps = GpsUsage(True, 1.0, "accepted", nis=nis)
+
+    def _fuse_gps_velocity(self, v: GpsVelocity) -> None:
+        """A velocity-only GPS message (NMEA VTG): course and speed when moving."""
+        if v.heading_rad is not None and v.speed_mps >= self.config.min_speed_for_gps_heading_mps:
+            self._update(motion.gps_velocity(self.state.x, v.speed_mps, v.heading_rad,
+                                             self.config.gps_velocity_sigma_mps), gate_dof=2)
+
+    def _gps_heading(self, fix: GpsFix) -> float | None:
+        fast = (fix.speed_mps or 0.0) >= self.config.min_speed_for_gps_heading_mps
+        return fix.heading_rad if fast and fix.heading_rad is not None else None
+
+    def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
+        s, cfg = self.state, self.config
+        east, north = self._local(fix)
+        distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
+        if cfg.gps_mode == GpsMode.RULES:
+            decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
+                                    distance_m=distance, gps_speed_mps=fix.speed_mps,
+                                    rejected_fixes=s.gated_fixes, dt_s=dt_s)
+        else:
+            pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, fix.speed_mps or 0.0,
+                                          s.gated_fixes)
+            action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
+                GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
+            decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
+        self._apply_decision(fix, decision, east, north)
+
+    def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float) -> None:
+        s = self.state
+        if d.action == GpsAction.REJECT:
+            s.gated_fixes += 1
+            s.gps = GpsUsage(False, 0.0, d.reason)
+            return
+        s.gated_fixes = 0
+        if d.action in (GpsAction.REINITIALIZE, GpsAction.INITIALIZE):
+            self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
+            s.gps = GpsUsage(True, 1.0, d.reason)
+            return
+        sigma = self._gps_sigma_m(fix)
+        z, h, H, R = motion.gps_position(s.x, east, north, sigma)
+        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, d.position_weight * H.T)
+        heading = self._gps_heading(fix)
+        if heading is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
+            # weighted sum of heading (wrapped) and speed with the GPS course and speed
+            H = np.zeros((2, N_STATES))
+            H[0, HEADING] = H[1, SPEED] = 1.0
+            y = np.array([math.remainder(heading - s.x[HEADING], 2.0 * math.pi),
+                          fix.speed_mps - s.x[SPEED]])
+            R = np.diag([math.radians(5.0) ** 2, self.config.gps_velocity_sigma_mps ** 2])
+            s.x, s.P = kalman.fixed_gain_update(s.x, s.P, y, H, R, d.heading_weight * H.T)
+            s.x[HEADING] %= 2.0 * math.pi
+        s.gps = GpsUsage(True, d.position_weight, d.reason)
+
+    # --- output --------------------------------------------------------------------------
+    def _estimate(self) -> FusedEstimate:
+        s = self.state
+        return FusedEstimate(
+            t=float(s.t or 0.0), x_m=float(s.x[X_M]), y_m=float(s.x[Y_M]),
+            heading_rad=float(s.x[HEADING] % (2.0 * math.pi)), speed_mps=float(s.x[SPEED]),
+            yaw_rate_rps=float(s.x[HEADING_RATE]),
+            position_cov_m2=s.P[:2, :2].copy(),
+            heading_sigma_rad=float(math.sqrt(max(s.P[HEADING, HEADING], 0.0))),
+            initialized=s.initialized, gps=s.gps,
+        )
+
+
+def _reset_variance(P: Array, i: int, variance: float) -> None:
+    P[i, :] = 0.0
+    P[:, i] = 0.0
+    P[i, i] = variance
+
+
+def _snapshot(state: FusionState) -> FusionState:
+    return replace(state, x=state.x.copy(), P=state.P.copy(), gps=copy.copy(state.gps))

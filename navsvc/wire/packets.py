@@ -1,0 +1,159 @@
+"""Sensor packets from JSON (interfaces.md): validate, convert degrees to radians.
+
+``parse(obj)`` returns a :mod:`navsvc.types` packet or raises :class:`PacketError` naming the
+field and the limit. Unknown extra fields are ignored.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from navsvc.errors import PacketError, RejectReason
+from navsvc.types import GpsFix, GpsFixType, ImuSample, OdometerSample, Packet, SteeringSample
+from navsvc.wire import nmea
+
+MAX_SPEED_MPS = 100.0
+MAX_RATE_DPS = 1000.0
+MAX_ACCEL_MPS2 = 200.0
+
+Time = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Packet(BaseModel):
+    model_config = ConfigDict(extra="ignore", frozen=True)
+    t: Time
+
+
+class GpsPacket(_Packet):
+    kind: Literal["gps"] = "gps"
+    lat: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)]
+    lon: Annotated[float, Field(ge=-180.0, le=180.0, allow_inf_nan=False)]
+    alt_m: Annotated[float, Field(ge=-1000.0, le=50_000.0, allow_inf_nan=False)] | None = None
+    speed_mps: Annotated[float, Field(ge=0.0, le=MAX_SPEED_MPS, allow_inf_nan=False)] | None \
+        = None
+    heading_deg: Annotated[float, Field(ge=0.0, le=360.0, allow_inf_nan=False)] | None = None
+    hdop: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] | None = None
+    sats: Annotated[int, Field(ge=0, le=200)] | None = None
+    fix: Literal["none", "2d", "3d", "dgps", "rtk"] | None = None
+    accuracy_m: Annotated[float, Field(gt=0.0, le=10_000.0, allow_inf_nan=False)] | None = None
+
+
+Rate = Annotated[float, Field(ge=-MAX_RATE_DPS, le=MAX_RATE_DPS, allow_inf_nan=False)]
+Accel = Annotated[float, Field(ge=-MAX_ACCEL_MPS2, le=MAX_ACCEL_MPS2, allow_inf_nan=False)]
+
+
+class ImuPacket(_Packet):
+    kind: Literal["imu"] = "imu"
+    yaw_rate_dps: Rate | None = None
+    accel_fwd_mps2: Accel | None = None
+    accel_left_mps2: Accel | None = None
+    gyro_dps: tuple[Rate, Rate, Rate] | None = None
+    accel_mps2: tuple[Accel, Accel, Accel] | None = None
+
+
+class OdometerPacket(_Packet):
+    kind: Literal["odometer"] = "odometer"
+    distance_m: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] | None = None
+    ticks: Annotated[int, Field(ge=0)] | None = None
+    speed_mps: Annotated[float, Field(ge=0.0, le=MAX_SPEED_MPS, allow_inf_nan=False)] | None \
+        = None
+
+
+class SteeringPacket(_Packet):
+    kind: Literal["steering"] = "steering"
+    angle_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)]
+
+
+MODELS: dict[str, type[_Packet]] = {"gps": GpsPacket, "imu": ImuPacket,
+                                    "odometer": OdometerPacket, "steering": SteeringPacket}
+
+
+def parse(obj: Any) -> Packet:
+    """One JSON object → a packet; raises PacketError saying what is wrong."""
+    if not isinstance(obj, dict):
+        raise PacketError(RejectReason.MALFORMED, f"expected a JSON object, got {_type(obj)}")
+    kind = obj.get("kind")
+    if kind == "nmea":
+        return _parse_nmea(obj)
+    model = MODELS.get(kind) if isinstance(kind, str) else None
+    if model is None:
+        known = ", ".join([*MODELS, "nmea"])
+        raise PacketError(RejectReason.UNKNOWN_KIND, f"kind {kind!r} (known: {known})")
+    try:
+        packet = model.model_validate(obj)
+    except ValidationError as exc:
+        raise _packet_error(exc) from None
+    return _to_core(packet)
+
+
+def _parse_nmea(obj: dict[str, Any]) -> Packet:
+    t = obj.get("t")
+    if t is None:
+        raise PacketError(RejectReason.MISSING_FIELD, "t is required")
+    if not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t) or t < 0:
+        raise PacketError(RejectReason.OUT_OF_RANGE, f"t={t!r} (must be a finite number >= 0)")
+    sentence = obj.get("sentence")
+    if not isinstance(sentence, str):
+        raise PacketError(RejectReason.MISSING_FIELD, "sentence is required (a string)")
+    return nmea.parse_sentence(sentence, float(t))
+
+
+def _packet_error(exc: ValidationError) -> PacketError:
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"]) or "packet"
+    kind = err["type"]
+    if kind == "missing":
+        return PacketError(RejectReason.MISSING_FIELD, f"{where} is required")
+    if kind == "finite_number":
+        return PacketError(RejectReason.NOT_FINITE, f"{where} must be finite")
+    if kind in ("greater_than_equal", "less_than_equal", "greater_than", "less_than"):
+        limit = err.get("ctx", {})
+        ops = {"ge": ">=", "le": "<=", "gt": ">", "lt": "<"}
+        bound = ", ".join(f"{ops.get(k, k)} {v}" for k, v in limit.items())
+        return PacketError(RejectReason.OUT_OF_RANGE,
+                           f"{where}={err.get('input')!r} (must be {bound})")
+    return PacketError(RejectReason.MALFORMED, f"{where}: {err['msg']}")
+
+
+def _to_core(p: _Packet) -> Packet:
+    if isinstance(p, GpsPacket):
+        return GpsFix(
+            t=p.t, lat_deg=p.lat, lon_deg=p.lon, alt_m=p.alt_m, speed_mps=p.speed_mps,
+            heading_rad=None if p.heading_deg is None else math.radians(p.heading_deg % 360.0),
+            hdop=p.hdop, sats=p.sats, fix=None if p.fix is None else GpsFixType(p.fix),
+            accuracy_m=p.accuracy_m)
+    if isinstance(p, ImuPacket):
+        fields = (p.yaw_rate_dps, p.accel_fwd_mps2, p.accel_left_mps2, p.gyro_dps, p.accel_mps2)
+        if all(f is None for f in fields):
+            raise PacketError(RejectReason.MISSING_FIELD,
+                              "imu needs yaw_rate_dps, accel_fwd_mps2, accel_left_mps2, "
+                              "gyro_dps or accel_mps2")
+        yaw = p.yaw_rate_dps if p.yaw_rate_dps is not None else \
+            (p.gyro_dps[2] if p.gyro_dps is not None else None)
+        return ImuSample(
+            t=p.t, yaw_rate_rps=None if yaw is None else math.radians(yaw),
+            accel_fwd_mps2=p.accel_fwd_mps2 if p.accel_fwd_mps2 is not None else
+            (p.accel_mps2[0] if p.accel_mps2 is not None else None),
+            accel_left_mps2=p.accel_left_mps2 if p.accel_left_mps2 is not None else
+            (p.accel_mps2[1] if p.accel_mps2 is not None else None),
+            gyro_rps=None if p.gyro_dps is None else
+            (math.radians(p.gyro_dps[0]), math.radians(p.gyro_dps[1]),
+             math.radians(p.gyro_dps[2])),
+            accel_mps2=p.accel_mps2)
+    if isinstance(p, OdometerPacket):
+        if p.distance_m is None and p.ticks is None and p.speed_mps is None:
+            raise PacketError(RejectReason.MISSING_FIELD,
+                              "odometer needs distance_m, ticks or speed_mps")
+        return OdometerSample(t=p.t, distance_m=p.distance_m, ticks=p.ticks,
+                              speed_mps=p.speed_mps)
+    assert isinstance(p, SteeringPacket)
+    return SteeringSample(t=p.t, angle_rad=math.radians(p.angle_deg))
+
+
+def _type(obj: Any) -> str:
+    names = {list: "an array", str: "a string", type(None): "null"}
+    return names.get(type(obj), type(obj).__name__)
