@@ -86,6 +86,7 @@ class FusionConfig:
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad
     min_sats: int = 3  # thesis validity: fewer than 3 satellites is bad
     stationary_after_samples: int = 20  # thesis: odometer zero for 20+ samples
+    odometer_window_s: float = 0.25  # speed from distance over at least this long (ticks)
     initial_heading_min_move_m: float = 5.0  # heading from two fixes this far apart
     reorder_window_s: float = 0.25
     output_interval_s: float = 1.0  # emit an estimate at least this often (GPS outages)
@@ -116,7 +117,8 @@ class FusionState:
     t: float | None = None  # time of x
     initialized: bool = False
     first_fix: tuple[float, float, float] | None = None  # (t, x, y) awaiting a heading
-    last_odo: tuple[float, float] | None = None  # (t, cumulative distance m)
+    last_odo: tuple[float, float] | None = None  # (t, cumulative distance m) window start
+    last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
     still_samples: int = 0
     accel_fwd_mps2: float | None = None  # last forward acceleration (configs 3 and 4)
     gated_fixes: int = 0  # consecutive GPS fixes not fused
@@ -239,7 +241,8 @@ class FusionEngine:
     def _fuse_dead_reckoning(self, packet: Packet) -> None:
         cfg, x = self.config, self.state.x
         if isinstance(packet, ImuSample):
-            if packet.yaw_rate_rps is not None and cfg.sensors != SensorConfig.STEERING_ODOMETER:
+            if packet.yaw_rate_rps is not None and cfg.sensors not in (
+                    SensorConfig.STEERING_ODOMETER, SensorConfig.GPS_ONLY):
                 self._update(motion.gyro_rate(x, packet.yaw_rate_rps, cfg.gyro_sigma_rps))
             if packet.accel_fwd_mps2 is not None:
                 self.state.accel_fwd_mps2 = packet.accel_fwd_mps2
@@ -256,30 +259,54 @@ class FusionEngine:
 
     def _fuse_odometer(self, packet: OdometerSample) -> None:
         cfg, s = self.config, self.state
-        speed = self._odometer_speed(packet)
-        if speed is None or cfg.sensors.speed_from_accel:
+        if cfg.sensors.speed_from_accel or cfg.sensors == SensorConfig.GPS_ONLY:
             return
-        s.still_samples = s.still_samples + 1 if speed == 0.0 else 0
-        if s.still_samples >= cfg.stationary_after_samples:
-            self._update(motion.zero_motion(s.x))
+        if self._odometer_still(packet):
+            s.still_samples += 1
+            if s.still_samples >= cfg.stationary_after_samples:
+                self._update(motion.zero_motion(s.x))
+                return
         else:
+            s.still_samples = 0
+        speed = self._odometer_speed(packet)
+        if speed is not None:
             self._update(motion.odometer_speed(s.x, speed, cfg.odometer_sigma_mps))
 
+    def _odometer_distance_m(self, packet: OdometerSample) -> float | None:
+        if packet.distance_m is not None:
+            return packet.distance_m
+        return None if packet.ticks is None else packet.ticks / self.config.ticks_per_m
+
+    def _odometer_still(self, packet: OdometerSample) -> bool:
+        if packet.speed_mps is not None:
+            return packet.speed_mps == 0.0
+        distance = self._odometer_distance_m(packet)
+        previous, self.state.last_odo_distance_m = self.state.last_odo_distance_m, distance
+        return distance is not None and distance == previous
+
     def _odometer_speed(self, packet: Packet) -> float | None:
-        """Speed from a speed reading, or from the change of cumulative distance or ticks."""
+        """Speed from a speed reading, or from cumulative distance over a window (ticks are
+        coarse: one tick in 20 ms is 1.8 m/s)."""
         if not isinstance(packet, OdometerSample):
             return None
         if packet.speed_mps is not None:
             return packet.speed_mps
-        distance = packet.distance_m if packet.distance_m is not None \
-            else (packet.ticks or 0) / self.config.ticks_per_m
-        last, self.state.last_odo = self.state.last_odo, (packet.t, distance)
-        if last is None or packet.t <= last[0]:
+        distance = self._odometer_distance_m(packet)
+        if distance is None:
             return None
-        return max(distance - last[1], 0.0) / (packet.t - last[0])
+        last = self.state.last_odo
+        if last is None or packet.t < last[0] or distance < last[1]:
+            self.state.last_odo = (packet.t, distance)
+            return None
+        if packet.t - last[0] < self.config.odometer_window_s:
+            return None
+        self.state.last_odo = (packet.t, distance)
+        return (distance - last[1]) / (packet.t - last[0])
 
     def _remember_odometer(self, packet: Packet) -> None:
-        self._odometer_speed(packet)
+        if isinstance(packet, OdometerSample):
+            self._odometer_still(packet)
+            self._odometer_speed(packet)
         self.state.t = packet.t if self.state.t is None else max(self.state.t, packet.t)
 
     # --- GPS -----------------------------------------------------------------------------

@@ -58,7 +58,7 @@ def decide_rules(
         if speed >= p.min_speed_for_heading_mps else 0.0
     threshold = p.max_distance_m
     if rejected_fixes >= p.widen_after_fixes:
-        threshold *= p.widen_factor ** (rejected_fixes - p.widen_after_fixes + 1)
+        threshold *= p.widen_factor ** min(rejected_fixes - p.widen_after_fixes + 1, 20)
     if distance_m <= threshold:
         pos_w = per_fix_weight(p.position_weight_per_s, dt_s)
         if speed < p.stopped_speed_mps:

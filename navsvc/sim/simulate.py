@@ -1,0 +1,390 @@
+"""Simulated drives on a road graph, with truth and realistic sensor errors (pure, seeded).
+
+A route is a random walk over the graph (no U-turns except at dead ends). Its polyline is
+smoothed through corners (Chaikin corner cutting), a speed profile respects the road class,
+lateral acceleration in curves, acceleration and braking limits and stops at some
+intersections; the vehicle follows it in time. Sensors see the truth through the errors of
+:class:`SensorErrors`: gyro bias, bias drift and noise; odometer scale error and tick
+quantisation; accelerometer bias and noise; steering bias and noise; GPS Gauss-Markov
+correlated error plus white noise, multipath jumps, and outages (explicit windows, and
+tunnels).
+
+Output: records in the wire format of interfaces.md (packets plus ``kind: "truth"``), time
+ordered, ``t`` in seconds since the start of the drive.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import networkx as nx
+import numpy as np
+import numpy.typing as npt
+
+from roadgraph import EdgeKey, RoadGraph
+from roadgraph.geometry import FloatArray
+
+_SPEED_BY_HIGHWAY_MPS = {
+    "motorway": 25.0, "motorway_link": 15.0, "trunk": 20.0, "trunk_link": 13.0,
+    "primary": 14.0, "primary_link": 11.0, "secondary": 12.5, "secondary_link": 10.0,
+    "tertiary": 11.0, "tertiary_link": 9.0, "unclassified": 9.0, "residential": 8.5,
+    "living_street": 4.0, "service": 5.0,
+}
+
+
+@dataclass(frozen=True)
+class SensorErrors:
+    """Error model of the simulated sensors (1-sigma values unless said otherwise)."""
+
+    gyro_bias_dps: float = 0.3  # initial bias, drawn once per drive
+    gyro_bias_drift_dps_per_sqrt_s: float = 0.005
+    gyro_noise_dps: float = 0.1  # per sample
+    odometer_scale_error: float = 0.02  # drawn once per drive
+    ticks_per_m: float = 27.3  # quantisation of cumulative distance
+    accel_bias_mps2: float = 0.05
+    accel_noise_mps2: float = 0.05
+    steering_bias_rad: float = 0.003
+    steering_noise_rad: float = 0.003
+    gps_markov_sigma_m: float = 2.5  # correlated error per axis
+    gps_markov_tau_s: float = 30.0
+    gps_white_sigma_m: float = 1.5
+    gps_multipath_rate_per_s: float = 0.01  # chance per fix that a jump starts
+    gps_multipath_m: tuple[float, float] = (10.0, 30.0)
+    gps_multipath_duration_s: tuple[float, float] = (2.0, 6.0)
+    gps_speed_sigma_mps: float = 0.2
+    gps_heading_sigma_deg: float = 2.0
+
+
+@dataclass(frozen=True)
+class DriveSpec:
+    """What to simulate."""
+
+    duration_s: float = 600.0
+    seed: int = 0
+    imu_rate_hz: float = 100.0
+    odometer_rate_hz: float = 50.0
+    steering_rate_hz: float = 50.0
+    gps_rate_hz: float = 1.0
+    truth_rate_hz: float = 10.0
+    outages: tuple[tuple[float, float], ...] = ()  # (start_s, length_s)
+    tunnels_block_gps: bool = True
+    sensors: tuple[str, ...] = ("imu", "odometer", "steering", "gps")
+    stop_probability: float = 0.2  # at each intersection
+    stop_duration_s: tuple[float, float] = (3.0, 15.0)
+    max_lateral_accel_mps2: float = 2.0
+    max_accel_mps2: float = 1.5
+    max_decel_mps2: float = 2.5
+    wheelbase_m: float = 2.7
+    errors: SensorErrors = field(default_factory=SensorErrors)
+
+
+@dataclass(frozen=True)
+class _Path:
+    """The smoothed route: vertices, cumulative length, heading, owning edge, speed limit."""
+
+    xy: FloatArray
+    s: FloatArray
+    heading: FloatArray  # unwrapped, compass convention
+    edge: list[EdgeKey]  # per segment
+    v_max: FloatArray  # per vertex
+    stops: list[tuple[float, float]]  # (s, dwell seconds)
+
+
+def random_route(graph: RoadGraph, length_m: float, rng: np.random.Generator) -> list[EdgeKey]:
+    """At least ``length_m`` of driving: shortest paths to random intersections, chained.
+
+    Each leg starts with a road leaving the previous leg's end without turning back, so the
+    route never makes a U-turn on the spot.
+    """
+    core = max(nx.strongly_connected_components(graph.graph), key=len)  # every node reachable
+    junctions = [n.id for n in graph.nodes if n.degree >= 3 and n.id in core]
+    edges = [EdgeKey(e.u, e.v, e.key) for e in graph.edges
+             if e.u != e.v and e.length_m > 20.0 and e.u in core and e.v in core]
+    route = [edges[rng.integers(len(edges))]]
+    total = graph.edge(route[0]).length_m
+    failures = 0
+    for _ in range(10_000):
+        if total >= length_m:
+            return route
+        last = route[-1]
+        onward = [EdgeKey(e.u, e.v, e.key) for e in graph.out_edges(last.v)
+                  if e.u != e.v and e.v != last.u and e.v in core
+                  and abs(graph.turn_angle_rad(last, EdgeKey(e.u, e.v, e.key))) < 2.6]
+        if not onward:  # dead end: drop the last edge and try another way from before it
+            if len(route) > 1:
+                total -= graph.edge(route.pop()).length_m
+            else:
+                route = [edges[rng.integers(len(edges))]]
+                total = graph.edge(route[0]).length_m
+            continue
+        first = onward[rng.integers(len(onward))]
+        target = junctions[rng.integers(len(junctions))]
+        try:
+            leg = [first, *graph.shortest_path(first.v, target)]
+        except nx.NetworkXNoPath:
+            failures += 1
+            continue
+        joints = zip([last, *leg[:-1]], leg)
+        if any(abs(graph.turn_angle_rad(a, b)) > 2.6 for a, b in joints):  # turns back on itself
+            failures += 1
+            if failures > 20:  # boxed in: back off one edge, or start afresh
+                if len(route) > 1:
+                    total -= graph.edge(route.pop()).length_m
+                else:
+                    route = [edges[rng.integers(len(edges))]]
+                    total = graph.edge(route[0]).length_m
+                failures = 0
+            continue
+        failures = 0
+        route += leg
+        total += sum(graph.edge(k).length_m for k in leg)
+    raise RuntimeError("could not build a route on this map")
+
+
+def _chaikin(xy: FloatArray, owner: list[int], rounds: int = 3) -> tuple[FloatArray, list[int]]:
+    """Corner cutting: keeps the end points; each new point inherits its segment's owner."""
+    for _ in range(rounds):
+        p0, p1 = xy[:-1], xy[1:]
+        q, r = 0.75 * p0 + 0.25 * p1, 0.25 * p0 + 0.75 * p1
+        inner = np.empty((2 * len(p0), 2))
+        inner[0::2], inner[1::2] = q, r
+        xy = np.vstack([xy[:1], inner, xy[-1:]])
+        seg_owner = [o for o in owner for _ in range(2)]
+        owner = [seg_owner[0], *seg_owner[1:], seg_owner[-1]][: len(xy) - 1]
+    return xy, owner
+
+
+def _resample(xy: FloatArray, owner: npt.NDArray[np.int64],
+              spacing_m: float) -> tuple[FloatArray, list[int]]:
+    """Even vertex spacing, so that corner cutting gives curves of realistic radius."""
+    seg_len = np.hypot(*np.diff(xy, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg_len)])
+    s_new = np.append(np.arange(0.0, s[-1], spacing_m), s[-1])
+    s_new = s_new[np.concatenate([[True], np.diff(s_new) > 0.1])]
+    x, y = np.interp(s_new, s, xy[:, 0]), np.interp(s_new, s, xy[:, 1])
+    mid = 0.5 * (s_new[:-1] + s_new[1:])
+    seg = np.clip(np.searchsorted(s, mid, side="right") - 1, 0, len(owner) - 1)
+    return np.column_stack([x, y]), owner[seg].tolist()
+
+
+def _remove_spikes(xy: FloatArray, owner: list[int],
+                   max_turn_rad: float = math.radians(100.0)) -> tuple[FloatArray, list[int]]:
+    """Drop vertices where the line doubles back within one vertex spacing.
+
+    Junction consolidation moves a node to its cluster's centre, so an edge may start with a
+    short stub pointing back; no car drives that.
+    """
+    for _ in range(1000):
+        seg = np.diff(xy, axis=0)
+        heading = np.arctan2(seg[:, 0], seg[:, 1])
+        turn = np.abs(np.remainder(np.diff(heading) + math.pi, 2.0 * math.pi) - math.pi)
+        bad = np.flatnonzero(turn > max_turn_rad)
+        if bad.size == 0:
+            break
+        i = int(bad[0]) + 1  # the vertex between segment i-1 and i
+        xy = np.delete(xy, i, axis=0)
+        owner = owner[:i] + owner[i + 1:]
+    return xy, owner
+
+
+def _build_path(graph: RoadGraph, route: list[EdgeKey], spec: DriveSpec,
+                rng: np.random.Generator) -> _Path:
+    pts, owner, node_s = [], [], []
+    for i, key in enumerate(route):
+        coords = graph.edge(key).coords
+        start = 0 if i == 0 else 1
+        pts.append(coords[start:])
+        owner.extend([i] * (len(coords) - 1))
+    xy = np.vstack(pts)
+    xy, owner = _resample(xy, np.array(owner), spacing_m=2.0)
+    xy, owner = _remove_spikes(xy, owner)
+    xy, owner = _chaikin(xy, owner)
+    seg = np.diff(xy, axis=0)
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    s = np.concatenate([[0.0], np.cumsum(seg_len)])
+    seg_heading = np.unwrap(np.arctan2(seg[:, 0], seg[:, 1]))
+    heading = np.concatenate([seg_heading[:1], 0.5 * (seg_heading[:-1] + seg_heading[1:]),
+                              seg_heading[-1:]])
+    edges = [route[o] for o in owner]
+    v_road = np.array([_SPEED_BY_HIGHWAY_MPS.get(graph.edge(e).highway, 10.0) for e in edges])
+    v_max = np.concatenate([v_road[:1], np.minimum(v_road[:-1], v_road[1:]), v_road[-1:]])
+    curvature = np.abs(np.gradient(heading, s, edge_order=1))
+    v_max = np.minimum(v_max, np.sqrt(spec.max_lateral_accel_mps2 / np.maximum(curvature, 1e-4)))
+    for i in range(1, len(owner)):
+        if owner[i] != owner[i - 1]:
+            node_s.append(s[i])
+    stops = [(ns, float(rng.uniform(*spec.stop_duration_s))) for ns in node_s
+             if rng.random() < spec.stop_probability]
+    for stop_s, _ in stops:
+        v_max[np.argmin(np.abs(s - stop_s))] = 0.0
+    v_max[0] = 0.0
+    return _Path(xy, s, heading, edges, _limit_accel(s, v_max, spec), stops)
+
+
+def _limit_accel(s: FloatArray, v: FloatArray, spec: DriveSpec) -> FloatArray:
+    v = v.copy()
+    ds = np.diff(s)
+    for i in range(1, len(v)):
+        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2.0 * spec.max_accel_mps2 * ds[i - 1]))
+    for i in range(len(v) - 2, -1, -1):
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * spec.max_decel_mps2 * ds[i]))
+    return v
+
+
+def _time_of_s(path: _Path, v_min_mps: float = 0.3) -> tuple[FloatArray, FloatArray]:
+    """Time at each path vertex, and (time, s) knots with the dwell of each stop inserted."""
+    v_mid = np.maximum(0.5 * (path.v_max[:-1] + path.v_max[1:]), v_min_mps)
+    t = np.concatenate([[0.0], np.cumsum(np.diff(path.s) / v_mid)])
+    knots_t, knots_s = list(t), list(path.s)
+    for stop_s, dwell in sorted(path.stops, reverse=True):
+        i = int(np.searchsorted(path.s, stop_s))
+        knots_t = knots_t[:i + 1] + [knots_t[i] + dwell] + [k + dwell for k in knots_t[i + 1:]]
+        knots_s = knots_s[:i + 1] + [knots_s[i]] + knots_s[i + 1:]
+    return np.array(knots_t), np.array(knots_s)
+
+
+@dataclass
+class _Truth:
+    t: FloatArray
+    x: FloatArray
+    y: FloatArray
+    heading: FloatArray  # unwrapped
+    rate: FloatArray  # heading rate, clockwise positive
+    speed: FloatArray
+    accel: FloatArray
+    s: FloatArray
+    edge_index: npt.NDArray[np.intp]
+
+
+def _sample_truth(path: _Path, duration_s: float, rate_hz: float) -> _Truth:
+    knots_t, knots_s = _time_of_s(path)
+    dt = 1.0 / rate_hz
+    t = np.arange(0.0, min(duration_s, knots_t[-1]), dt)
+    s = np.interp(t, knots_t, knots_s)
+    x = np.interp(s, path.s, path.xy[:, 0])
+    y = np.interp(s, path.s, path.xy[:, 1])
+    heading = np.interp(s, path.s, path.heading)
+    speed = np.gradient(s, dt)
+    seg = np.clip(np.searchsorted(path.s, s, side="right") - 1, 0, len(path.edge) - 1)
+    return _Truth(t, x, y, heading, np.gradient(heading, dt), speed, np.gradient(speed, dt),
+                  s, seg)
+
+
+def simulate_drive(graph: RoadGraph, spec: DriveSpec) -> list[dict[str, Any]]:
+    """Simulate one drive: wire-format records in time order (packets and truth)."""
+    rng = np.random.default_rng(spec.seed)
+    route = random_route(graph, spec.duration_s * 15.0 + 500.0, rng)
+    path = _build_path(graph, route, spec, rng)
+    truth = _sample_truth(path, spec.duration_s, spec.imu_rate_hz)
+    records = _truth_records(graph, path, truth, spec)
+    sensors = set(spec.sensors)
+    if "imu" in sensors:
+        records += _imu_records(truth, spec, rng)
+    if "odometer" in sensors:
+        records += _odometer_records(truth, spec, rng)
+    if "steering" in sensors:
+        records += _steering_records(truth, spec, rng)
+    if "gps" in sensors:
+        records += _gps_records(graph, path, truth, spec, rng)
+    order = {"truth": 0, "gps": 1, "imu": 2, "odometer": 3, "steering": 4}
+    records.sort(key=lambda r: (r["t"], order[r["kind"]]))
+    return records
+
+
+def _every(truth: _Truth, rate_hz: float, imu_rate_hz: float) -> FloatArray:
+    step = max(int(round(imu_rate_hz / rate_hz)), 1)
+    return np.arange(0, len(truth.t), step)
+
+
+def _truth_records(graph: RoadGraph, path: _Path, truth: _Truth,
+                   spec: DriveSpec) -> list[dict[str, Any]]:
+    out = []
+    frame = graph.frame
+    for i in _every(truth, spec.truth_rate_hz, spec.imu_rate_hz):
+        lon, lat = frame.to_wgs84(truth.x[i], truth.y[i])
+        key = path.edge[truth.edge_index[i]]
+        out.append({"t": round(float(truth.t[i]), 4), "kind": "truth", "lat": lat, "lon": lon,
+                    "heading_deg": math.degrees(truth.heading[i]) % 360.0,
+                    "speed_mps": max(float(truth.speed[i]), 0.0),
+                    "osm_way_id": graph.edge(key).osm_way_ids[0], "u": key.u, "v": key.v})
+    return out
+
+
+def _imu_records(truth: _Truth, spec: DriveSpec, rng: np.random.Generator) -> list[dict[str, Any]]:
+    e = spec.errors
+    n = len(truth.t)
+    dt = 1.0 / spec.imu_rate_hz
+    bias = rng.normal(0.0, e.gyro_bias_dps) + np.cumsum(
+        rng.normal(0.0, e.gyro_bias_drift_dps_per_sqrt_s * math.sqrt(dt), n))
+    yaw_left_dps = -np.degrees(truth.rate) + bias + rng.normal(0.0, e.gyro_noise_dps, n)
+    accel_bias = rng.normal(0.0, e.accel_bias_mps2)
+    fwd = truth.accel + accel_bias + rng.normal(0.0, e.accel_noise_mps2, n)
+    left = -truth.speed * truth.rate + rng.normal(0.0, e.accel_noise_mps2, n)
+    return [{"t": round(float(truth.t[i]), 4), "kind": "imu",
+             "yaw_rate_dps": float(yaw_left_dps[i]), "accel_fwd_mps2": float(fwd[i]),
+             "accel_left_mps2": float(left[i])} for i in range(n)]
+
+
+def _odometer_records(truth: _Truth, spec: DriveSpec,
+                      rng: np.random.Generator) -> list[dict[str, Any]]:
+    e = spec.errors
+    scale = 1.0 + rng.normal(0.0, e.odometer_scale_error)
+    out = []
+    for i in _every(truth, spec.odometer_rate_hz, spec.imu_rate_hz):
+        ticks = math.floor(truth.s[i] * scale * e.ticks_per_m)
+        out.append({"t": round(float(truth.t[i]), 4), "kind": "odometer",
+                    "distance_m": ticks / e.ticks_per_m})
+    return out
+
+
+def _steering_records(truth: _Truth, spec: DriveSpec,
+                      rng: np.random.Generator) -> list[dict[str, Any]]:
+    e = spec.errors
+    bias = rng.normal(0.0, e.steering_bias_rad)
+    out = []
+    for i in _every(truth, spec.steering_rate_hz, spec.imu_rate_hz):
+        v = truth.speed[i]
+        curvature_left = -truth.rate[i] / v if v > 1.0 else 0.0
+        angle = math.atan(spec.wheelbase_m * curvature_left) + bias + \
+            rng.normal(0.0, e.steering_noise_rad)
+        out.append({"t": round(float(truth.t[i]), 4), "kind": "steering",
+                    "angle_deg": math.degrees(angle)})
+    return out
+
+
+def _gps_blocked(graph: RoadGraph, path: _Path, truth: _Truth, i: int, spec: DriveSpec) -> bool:
+    t = truth.t[i]
+    if any(start <= t < start + length for start, length in spec.outages):
+        return True
+    return spec.tunnels_block_gps and graph.edge(path.edge[truth.edge_index[i]]).tunnel
+
+
+def _gps_records(graph: RoadGraph, path: _Path, truth: _Truth, spec: DriveSpec,
+                 rng: np.random.Generator) -> list[dict[str, Any]]:
+    e = spec.errors
+    dt = 1.0 / spec.gps_rate_hz
+    phi = math.exp(-dt / e.gps_markov_tau_s)
+    markov = rng.normal(0.0, e.gps_markov_sigma_m, 2)
+    jump, jump_until = np.zeros(2), -1.0
+    out = []
+    for i in _every(truth, spec.gps_rate_hz, spec.imu_rate_hz):
+        t = float(truth.t[i])
+        markov = phi * markov + rng.normal(0.0, e.gps_markov_sigma_m * math.sqrt(1 - phi ** 2), 2)
+        if t >= jump_until and rng.random() < e.gps_multipath_rate_per_s * dt:
+            angle = rng.uniform(0.0, 2.0 * math.pi)
+            jump = rng.uniform(*e.gps_multipath_m) * np.array([math.sin(angle), math.cos(angle)])
+            jump_until = t + rng.uniform(*e.gps_multipath_duration_s)
+        if _gps_blocked(graph, path, truth, i, spec):
+            continue
+        err = markov + rng.normal(0.0, e.gps_white_sigma_m, 2) + (jump if t < jump_until else 0)
+        lon, lat = graph.frame.to_wgs84(truth.x[i] + err[0], truth.y[i] + err[1])
+        speed = max(float(truth.speed[i]) + rng.normal(0.0, e.gps_speed_sigma_mps), 0.0)
+        heading = math.degrees(truth.heading[i]) + rng.normal(0.0, e.gps_heading_sigma_deg)
+        if speed < 0.5:
+            heading = rng.uniform(0.0, 360.0)  # a stopped receiver's course wanders
+        out.append({"t": round(t, 4), "kind": "gps", "lat": lat, "lon": lon,
+                    "speed_mps": speed, "heading_deg": heading % 360.0,
+                    "hdop": 2.5 if t < jump_until else 1.0, "sats": 8, "fix": "3d"})
+    return out

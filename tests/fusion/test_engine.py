@@ -1,0 +1,95 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from navsvc.errors import PacketError
+from navsvc.fusion.engine import FusionConfig, FusionEngine
+from navsvc.sim.simulate import DriveSpec, simulate_drive
+from navsvc.types import GpsFix, ImuSample, OdometerSample
+from navsvc.wire.packets import parse
+from roadgraph import RoadGraph
+
+
+@pytest.fixture(scope="module")
+def drive(sample_graph: RoadGraph) -> list[dict[str, object]]:
+    return simulate_drive(sample_graph, DriveSpec(duration_s=240, seed=3,
+                                                  outages=((120.0, 30.0),)))
+
+
+def _errors(graph: RoadGraph, records: list[dict], times: np.ndarray,
+            xy: np.ndarray) -> np.ndarray:
+    truth = [r for r in records if r["kind"] == "truth"]
+    tt = np.array([r["t"] for r in truth])
+    txy = np.array([graph.frame.to_local(r["lon"], r["lat"]) for r in truth])
+    tx, ty = np.interp(times, tt, txy[:, 0]), np.interp(times, tt, txy[:, 1])
+    return np.hypot(xy[:, 0] - tx, xy[:, 1] - ty)
+
+
+def test_simulation_is_deterministic(sample_graph: RoadGraph) -> None:
+    a = simulate_drive(sample_graph, DriveSpec(duration_s=20, seed=5))
+    b = simulate_drive(sample_graph, DriveSpec(duration_s=20, seed=5))
+    assert a == b
+    assert simulate_drive(sample_graph, DriveSpec(duration_s=20, seed=6)) != a
+
+
+def test_gyro_odometer_beats_gps_and_holds_through_outage(sample_graph: RoadGraph,
+                                                          drive: list[dict]) -> None:
+    engine = FusionEngine(FusionConfig(), frame=sample_graph.frame)
+    out = [e for r in drive if r["kind"] != "truth" for e in engine.add(parse(r))]
+    times = np.array([e.t for e in out])
+    fused = _errors(sample_graph, drive, times, np.array([(e.x_m, e.y_m) for e in out]))
+    gps = [r for r in drive if r["kind"] == "gps"]
+    raw = _errors(sample_graph, drive, np.array([r["t"] for r in gps]),
+                  np.array([sample_graph.frame.to_local(r["lon"], r["lat"]) for r in gps]))
+    at_gps = np.isin(np.round(times, 3), np.round([r["t"] for r in gps], 3))
+    # where GPS is present, fusion is better than GPS alone
+    assert math.sqrt(np.mean(fused[at_gps] ** 2)) < math.sqrt(np.mean(raw ** 2))
+    in_outage = (times >= 120.0) & (times < 150.0)
+    assert in_outage.sum() >= 25  # estimates keep coming without GPS
+    assert fused[in_outage].max() < 40.0
+    # the filter's own uncertainty grows through the outage
+    sigmas = np.array([e.position_sigma_m for e in out])
+    assert sigmas[in_outage][-1] > 2 * sigmas[in_outage][0]
+
+
+def test_late_packets_within_window_are_reordered_older_rejected() -> None:
+    engine = FusionEngine(FusionConfig(reorder_window_s=0.25))
+    engine.add(GpsFix(t=0.0, lat_deg=43.73, lon_deg=7.42, speed_mps=10.0, heading_rad=0.0))
+    for k in range(1, 20):
+        engine.add(ImuSample(t=k * 0.01, yaw_rate_rps=0.0))
+    engine.add(OdometerSample(t=0.15, distance_m=1.5))  # 0.04 s late: applied in order
+    assert engine.state.t == pytest.approx(0.19)
+    with pytest.raises(PacketError, match="before the latest packet"):
+        engine.add(ImuSample(t=-0.5, yaw_rate_rps=0.0))
+    assert engine.state.late_rejected == 1
+
+
+packets = st.one_of(
+    st.builds(lambda t, y: {"t": t, "kind": "imu", "yaw_rate_dps": y},
+              st.floats(-5, 50), st.floats(-2000, 2000) | st.just(float("nan"))),
+    st.builds(lambda t, d: {"t": t, "kind": "odometer", "distance_m": d},
+              st.floats(-5, 50), st.floats(-10, 1e4)),
+    st.builds(lambda t, la, lo, s: {"t": t, "kind": "gps", "lat": la, "lon": lo,
+                                    "speed_mps": s, "heading_deg": 45.0},
+              st.floats(-5, 50), st.floats(43.72, 43.75), st.floats(7.40, 7.44),
+              st.floats(-1, 120)),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(packets, max_size=60))
+def test_random_streams_never_raise_and_rejections_change_nothing(stream: list[dict]) -> None:
+    engine = FusionEngine(FusionConfig())
+    for obj in stream:
+        before = (engine.state.x.copy(), engine.state.P.copy(), engine.state.t)
+        try:
+            engine.add(parse(obj))
+        except PacketError:
+            assert np.array_equal(engine.state.x, before[0])
+            assert np.array_equal(engine.state.P, before[1])
+            assert engine.state.t == before[2]
+        assert np.all(np.isfinite(engine.state.x)) and np.all(np.isfinite(engine.state.P))
+        assert np.allclose(engine.state.P, engine.state.P.T)

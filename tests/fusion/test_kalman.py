@@ -1,0 +1,49 @@
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from navsvc.fusion import kalman
+
+
+def test_scalar_update_by_hand() -> None:
+    # prior 0 +- 2 (var 4), measurement 3 +- 1 (var 1): K = 4/5, x = 2.4, P = 0.8
+    x, P = np.array([0.0]), np.array([[4.0]])
+    H, R = np.array([[1.0]]), np.array([[1.0]])
+    y, S, nis = kalman.innovation(np.array([3.0]), x, H, P, R)
+    assert S[0, 0] == pytest.approx(5.0) and nis == pytest.approx(9.0 / 5.0)
+    x2, P2 = kalman.update(x, P, y, S, H, R)
+    assert x2[0] == pytest.approx(2.4) and P2[0, 0] == pytest.approx(0.8)
+
+
+def test_two_by_two_position_update() -> None:
+    x = np.array([0.0, 0.0])
+    P = np.diag([4.0, 9.0])
+    H, R = np.eye(2), np.eye(2)
+    y, S, _ = kalman.innovation(np.array([5.0, 10.0]), x, H, P, R)
+    x2, P2 = kalman.update(x, P, y, S, H, R)
+    assert x2 == pytest.approx([4.0, 9.0])
+    assert np.diag(P2) == pytest.approx([0.8, 0.9])
+
+
+def test_gate() -> None:
+    assert kalman.gate(13.0, 2) and not kalman.gate(14.0, 2)
+    assert kalman.gate(14.0, 2, scale=2.0)
+
+
+spd = st.floats(0.1, 100.0)
+
+
+@given(spd, spd, spd, st.floats(-50, 50), st.floats(-50, 50))
+def test_covariance_stays_symmetric_psd(a: float, b: float, r: float, z0: float,
+                                        z1: float) -> None:
+    P = np.array([[a, 0.3 * min(a, b)], [0.3 * min(a, b), b]])
+    H, R = np.array([[1.0, 0.5]]), np.array([[r]])
+    x = np.zeros(2)
+    y, S, _ = kalman.innovation(np.array([z0]), H @ x, H, P, R)
+    _, P2 = kalman.update(x, P, y, S, H, R)
+    assert np.allclose(P2, P2.T)
+    assert np.linalg.eigvalsh(P2).min() > -1e-9
+    F = np.array([[1.0, 0.1], [0.0, 1.0]])
+    P3 = kalman.predict(x, P2, F, np.eye(2) * z1 ** 2 * 1e-3)
+    assert np.allclose(P3, P3.T) and np.linalg.eigvalsh(P3).min() > -1e-9
