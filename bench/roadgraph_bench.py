@@ -24,7 +24,7 @@ import shapely
 from report import median_us, print_table, write_json
 from tqdm import tqdm
 
-from roadgraph import RoadGraph
+from roadgraph import EdgeKey, RoadGraph
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -85,6 +85,13 @@ def osmnx_graph(graph: RoadGraph) -> nx.MultiDiGraph:
     return g
 
 
+def _same_distance(graph: RoadGraph, x: float, y: float, osmnx_key: tuple[int, int, int]) -> bool:
+    """Our nearest edge is osmnx's, or an exact tie with it."""
+    ours = graph.nearest_edge(x, y)
+    theirs = graph.project(EdgeKey(*osmnx_key), x, y).distance_m
+    return tuple(ours.edge) == tuple(osmnx_key) or abs(ours.distance_m - theirs) < 1e-6
+
+
 def time_per_call(fn, points: np.ndarray, desc: str) -> list[float]:  # type: ignore[no-untyped-def]
     """Seconds per call, with the garbage collector paused as timeit does."""
     out = []
@@ -132,10 +139,7 @@ def main() -> None:
         few = pts[: args.osmnx_single_points]
         ox_single = time_per_call(lambda x, y: ox.distance.nearest_edges(ox_graph, x, y), few,
                                   "osmnx nearest_edges")
-        agree = np.mean([tuple(graph.nearest_edge(x, y).edge) == tuple(k) or
-                         abs(graph.nearest_edge(x, y).distance_m -
-                             graph.project(type(graph.nearest_edge(x, y).edge)(*k), x, y)
-                             .distance_m) < 1e-6
+        agree = np.mean([_same_distance(graph, x, y, k)
                          for (x, y), k in zip(pts[:2000], ox_bulk[:2000])])
         r = {
             "edges_near_median_us": median_us(ours_near),

@@ -123,13 +123,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
-    if (args.source is None) == (args.place is None and args.bbox is None):
-        print("roadgraph: error: give either SOURCE or one of --place / --bbox",
-              file=sys.stderr)
+    try:
+        info = import_map(args.output, source=args.source, place=args.place, bbox=args.bbox,
+                          network=args.network, consolidate_m=args.consolidate_m,
+                          progress=not args.quiet)
+    except ValueError as exc:  # the importer's own argument check
+        print(f"roadgraph: error: {exc}", file=sys.stderr)
         return 2
-    info = import_map(args.output, source=args.source, place=args.place, bbox=args.bbox,
-                      network=args.network, consolidate_m=args.consolidate_m,
-                      progress=not args.quiet)
     if not args.quiet:
         _print_info(info, args.output, as_json=args.json)
     return 0

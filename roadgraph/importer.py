@@ -32,7 +32,7 @@ def import_map(
 ) -> MapInfo:
     """Import one map from a local file, a place name or a bounding box; return its summary."""
     if (source is None) == (place is None and bbox is None) or (place and bbox):
-        raise ValueError("give exactly one of source, place or bbox")
+        raise ValueError("give exactly one of SOURCE, --place or --bbox")
     check_writable(output)
     steps = tqdm(total=3, desc="import", unit="step", leave=False,
                  disable=None if progress else True)
