@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from navsvc.errors import PacketError, RejectReason
 from navsvc.types import GpsFix, GpsFixType, ImuSample, OdometerSample, Packet, SteeringSample
-from navsvc.wire import nmea
+from navsvc.wire import nmea, oncore
 
 MAX_SPEED_MPS = 100.0
 MAX_RATE_DPS = 1000.0
@@ -77,11 +77,11 @@ def parse(obj: Any) -> Packet:
     if not isinstance(obj, dict):
         raise PacketError(RejectReason.MALFORMED, f"expected a JSON object, got {_type(obj)}")
     kind = obj.get("kind")
-    if kind == "nmea":
-        return _parse_nmea(obj)
+    if kind in ("nmea", "oncore"):
+        return _parse_text(obj, kind)
     model = MODELS.get(kind) if isinstance(kind, str) else None
     if model is None:
-        known = ", ".join([*MODELS, "nmea"])
+        known = ", ".join([*MODELS, "nmea", "oncore"])
         raise PacketError(RejectReason.UNKNOWN_KIND, f"kind {kind!r} (known: {known})")
     try:
         packet = model.model_validate(obj)
@@ -90,16 +90,20 @@ def parse(obj: Any) -> Packet:
     return _to_core(packet)
 
 
-def _parse_nmea(obj: dict[str, Any]) -> Packet:
+def _parse_text(obj: dict[str, Any], kind: str) -> Packet:
+    """An ``nmea`` sentence or an ``oncore`` hex message, with its ``t``."""
     t = obj.get("t")
     if t is None:
         raise PacketError(RejectReason.MISSING_FIELD, "t is required")
     if not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t) or t < 0:
         raise PacketError(RejectReason.OUT_OF_RANGE, f"t={t!r} (must be a finite number >= 0)")
-    sentence = obj.get("sentence")
-    if not isinstance(sentence, str):
-        raise PacketError(RejectReason.MISSING_FIELD, "sentence is required (a string)")
-    return nmea.parse_sentence(sentence, float(t))
+    field_name = "sentence" if kind == "nmea" else "hex"
+    text = obj.get(field_name)
+    if not isinstance(text, str):
+        raise PacketError(RejectReason.MISSING_FIELD, f"{field_name} is required (a string)")
+    if kind == "nmea":
+        return nmea.parse_sentence(text, float(t))
+    return oncore.parse_ba(text, float(t))
 
 
 def _packet_error(exc: ValidationError) -> PacketError:

@@ -36,7 +36,7 @@ def test_imu_six_axis_gives_yaw_rate() -> None:
     ({"t": 1, "kind": "gps", "lat": 1, "lon": 1, "speed_mps": -1}, "out_of_range",
      "a value is out of range: speed_mps=-1 (must be >= 0.0)"),
     ({"t": 1, "kind": "teleport"}, "unknown_kind",
-     "unknown packet kind: kind 'teleport' (known: gps, imu, odometer, steering, nmea)"),
+     "unknown packet kind: kind 'teleport' (known: gps, imu, odometer, steering, nmea, oncore)"),
     ([1, 2], "malformed",
      "packet is not a JSON object with the fields of its kind: expected a JSON object, "
      "got an array"),
