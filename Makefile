@@ -26,7 +26,11 @@ test: $(BIN)/.installed
 	$(BIN)/python -m pytest
 
 bench: $(MAP_DB)
+	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
 	$(BIN)/python bench/roadgraph_bench.py --map-source $(MAP_SOURCE)
+	$(BIN)/python bench/fusion_bench.py
+	$(BIN)/python bench/fusion_eval.py --map $(MAP_DB)
+	$(BIN)/python bench/comma2k19.py
 
 clean:
 	rm -rf $(VENV) $(MAP_DB) bench/results .pytest_cache .hypothesis

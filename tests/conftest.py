@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from roadgraph import RoadGraph, import_map
 
@@ -24,3 +25,8 @@ def sample_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def sample_graph(sample_db: Path) -> RoadGraph:
     return RoadGraph.open(sample_db)
+
+
+# numba compiles the filter kernels on first use (then caches them): no per-example deadline
+settings.register_profile("navsvc", deadline=None)
+settings.load_profile("navsvc")

@@ -83,6 +83,7 @@ class FusionConfig:
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
     gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
     reinit_after_gated_fixes: int = 10  # ekf: this many gated fixes in a row → restart from GPS
+    reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad
     min_sats: int = 3  # thesis validity: fewer than 3 satellites is bad
     stationary_after_samples: int = 20  # thesis: odometer zero for 20+ samples
@@ -104,6 +105,8 @@ class FusionConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ConfigError(f"{name} must be a finite number > 0, got {value}")
+        if self.sensors == SensorConfig.GPS_ONLY and self.process.turn_rate_tau_s is None:
+            object.__setattr__(self, "process", replace(self.process, turn_rate_tau_s=3.0))
         if self.reorder_window_s < 0.0:
             raise ConfigError(f"reorder_window_s must be >= 0, got {self.reorder_window_s}")
 
@@ -122,6 +125,7 @@ class FusionState:
     still_samples: int = 0
     accel_fwd_mps2: float | None = None  # last forward acceleration (configs 3 and 4)
     gated_fixes: int = 0  # consecutive GPS fixes not fused
+    gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     last_gps_t: float | None = None
     last_output_t: float | None = None
     gps: GpsUsage | None = None
@@ -222,8 +226,8 @@ class FusionEngine:
         accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
         while remaining > 1e-9:
             dt = min(remaining, cfg.max_step_s)
-            s.x, F, Q = motion.propagate(s.x, dt, accel, cfg.process)
-            s.P = kalman.predict(s.x, s.P, F, Q)
+            s.x, F, q = motion.propagate(s.x, dt, accel, cfg.process)
+            s.P = kalman.predict(s.P, F, q)
             remaining -= dt
         s.t = max(s.t, t)
 
@@ -418,8 +422,7 @@ class FusionEngine:
         s.gated_fixes = 0
         heading = self._gps_heading(fix)
         if heading is not None and fix.speed_mps is not None:
-            self._update(motion.gps_velocity(s.x, fix.speed_mps, heading,
-                                             cfg.gps_velocity_sigma_mps), gate_dof=2)
+            self._fuse_gps_course(heading, fix.speed_mps)
         elif cfg.sensors == SensorConfig.GPS_ONLY and fix.speed_mps is not None \
                 and fix.speed_mps < 0.5:
             self._update(motion.zero_motion(s.x, sigma_mps=0.3, sigma_rps=0.05))
@@ -428,8 +431,24 @@ class FusionEngine:
     def _fuse_gps_velocity(self, v: GpsVelocity) -> None:
         """A velocity-only GPS message (NMEA VTG): course and speed when moving."""
         if v.heading_rad is not None and v.speed_mps >= self.config.min_speed_for_gps_heading_mps:
-            self._update(motion.gps_velocity(self.state.x, v.speed_mps, v.heading_rad,
-                                             self.config.gps_velocity_sigma_mps), gate_dof=2)
+            self._fuse_gps_course(v.heading_rad, v.speed_mps)
+
+    def _fuse_gps_course(self, course_rad: float, speed_mps: float) -> None:
+        """GPS course and speed; a heading the gate keeps refusing is replaced by the course
+        (after a long stop or outage the filter's heading can be far off and overconfident)."""
+        s, cfg = self.state, self.config
+        gate = None if cfg.sensors == SensorConfig.GPS_ONLY else 2  # GPS is the only heading
+        nis = self._update(motion.gps_velocity(s.x, speed_mps, course_rad,
+                                               cfg.gps_velocity_sigma_mps), gate_dof=gate)
+        if nis is not None:
+            s.gated_courses = 0
+            return
+        s.gated_courses += 1
+        if s.gated_courses >= cfg.reset_heading_after_gated_courses:
+            s.x[HEADING], s.x[SPEED] = course_rad % (2.0 * math.pi), speed_mps
+            _reset_variance(s.P, HEADING, math.radians(10.0) ** 2)
+            _reset_variance(s.P, SPEED, 1.0)
+            s.gated_courses = 0
 
     def _gps_heading(self, fix: GpsFix) -> float | None:
         fast = (fix.speed_mps or 0.0) >= self.config.min_speed_for_gps_heading_mps

@@ -41,7 +41,7 @@ class RuleParams:
 
 def per_fix_weight(weight_per_s: float, dt_s: float) -> float:
     """A per-second weight applied over ``dt_s``: ``1 - (1 - w)^dt``."""
-    return 1.0 - (1.0 - min(max(weight_per_s, 0.0), 1.0)) ** max(dt_s, 0.0)
+    return float(1.0 - (1.0 - min(max(weight_per_s, 0.0), 1.0)) ** max(dt_s, 0.0))
 
 
 def decide_rules(

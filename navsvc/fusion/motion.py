@@ -11,7 +11,8 @@ State ``x`` (8), units in brackets::
     2 HEADING        heading, clockwise from north [rad]
     3 SPEED          forward speed [m/s]
     4 HEADING_RATE   heading rate, clockwise positive [rad/s] (= minus the gyro's z-up rate)
-    5 GYRO_BIAS      gyro z-rate bias [rad/s]
+    5 GYRO_BIAS      gyro z-rate bias [rad/s]; with steering + odometer (no gyro), the
+                     steering-angle bias [rad] instead
     6 ODO_SCALE      odometer scale factor (measured = scale x true) [-]
     7 ACCEL_BIAS     forward accelerometer bias [m/s²]
 
@@ -24,10 +25,11 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from navsvc.fusion.kalman import Array
+from navsvc.fusion.kalman import Array, jit
 
 X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS = range(8)
 N_STATES = 8
@@ -56,43 +58,71 @@ class ProcessNoise:
     gyro_bias_drift_rps_per_sqrt_s: float = 2e-4
     odo_scale_drift_per_sqrt_s: float = 1e-5
     accel_bias_drift_mps2_per_sqrt_s: float = 1e-3
+    turn_rate_tau_s: float | None = None  # GPS only: the turn rate decays with this time
+    accel_integration_mps2: float = 0.3  # speed noise when it integrates the accelerometer
+
+    @cached_property
+    def densities(self) -> Array:
+        """Diagonal of Q per second (speed a random walk)."""
+        return np.array([0.0, 0.0, 0.0, self.accel_mps2 ** 2, self.heading_accel_rps2 ** 2,
+                         self.gyro_bias_drift_rps_per_sqrt_s ** 2,
+                         self.odo_scale_drift_per_sqrt_s ** 2,
+                         self.accel_bias_drift_mps2_per_sqrt_s ** 2])
+
+    @cached_property
+    def densities_with_accel(self) -> Array:
+        """Diagonal of Q per second when the speed integrates the accelerometer."""
+        q = self.densities.copy()
+        q[SPEED] = self.accel_integration_mps2 ** 2
+        return q
 
 
 def propagate(x: Array, dt_s: float, accel_fwd_mps2: float | None,
               noise: ProcessNoise) -> tuple[Array, Array, Array]:
-    """One step of the kinematic model: new state, Jacobian ``F`` and process noise ``Q``.
+    """One step of the kinematic model: new state, Jacobian ``F`` and the diagonal of the
+    process noise ``Q`` (it is diagonal: independent random walks).
 
     With ``accel_fwd_mps2`` (configs 3 and 4) the speed integrates the bias-corrected forward
-    acceleration; otherwise it is a random walk that the odometer or GPS pins down.
+    acceleration; otherwise it is a random walk that the odometer or GPS pins down. With
+    ``noise.turn_rate_tau_s`` (GPS only: no sensor measures the turn rate) the turn rate is a
+    first-order Gauss-Markov process, so a turn does not go on for ever in an outage.
     """
+    if accel_fwd_mps2 is None:
+        accel, densities = math.nan, noise.densities
+    else:
+        accel, densities = accel_fwd_mps2, noise.densities_with_accel
+    return _propagate(x, dt_s, accel, densities,
+                      math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
+
+
+@jit
+def _propagate(x: Array, dt_s: float, accel_fwd_mps2: float, densities: Array,
+               turn_rate_tau_s: float) -> tuple[Array, Array, Array]:  # pragma: no cover
     heading, speed, rate = x[HEADING], x[SPEED], x[HEADING_RATE]
     mid = heading + 0.5 * rate * dt_s
     s, c = math.sin(mid), math.cos(mid)
-    x_next = x.copy()
-    x_next[X_M] += speed * s * dt_s
-    x_next[Y_M] += speed * c * dt_s
-    x_next[HEADING] = (heading + rate * dt_s) % (2.0 * math.pi)
+    vs, vc = speed * s * dt_s, speed * c * dt_s
     F = np.eye(N_STATES)
-    F[X_M, HEADING] = speed * c * dt_s
+    F[X_M, HEADING] = vc
     F[X_M, SPEED] = s * dt_s
-    F[X_M, HEADING_RATE] = 0.5 * speed * c * dt_s * dt_s
-    F[Y_M, HEADING] = -speed * s * dt_s
+    F[X_M, HEADING_RATE] = 0.5 * vc * dt_s
+    F[Y_M, HEADING] = -vs
     F[Y_M, SPEED] = c * dt_s
-    F[Y_M, HEADING_RATE] = -0.5 * speed * s * dt_s * dt_s
+    F[Y_M, HEADING_RATE] = -0.5 * vs * dt_s
     F[HEADING, HEADING_RATE] = dt_s
-    if accel_fwd_mps2 is not None:
+    x_next = x.copy()
+    x_next[X_M] += vs
+    x_next[Y_M] += vc
+    x_next[HEADING] = (heading + rate * dt_s) % (2.0 * math.pi)
+    if not math.isnan(accel_fwd_mps2):  # speed integrates the accelerometer
         x_next[SPEED] += (accel_fwd_mps2 - x[ACCEL_BIAS]) * dt_s
         F[SPEED, ACCEL_BIAS] = -dt_s
     x_next[SPEED] = max(x_next[SPEED], 0.0)
-    Q = np.diag([
-        0.0, 0.0, 0.0,
-        (noise.accel_mps2 if accel_fwd_mps2 is None else 0.3) ** 2 * dt_s,
-        noise.heading_accel_rps2 ** 2 * dt_s,
-        noise.gyro_bias_drift_rps_per_sqrt_s ** 2 * dt_s,
-        noise.odo_scale_drift_per_sqrt_s ** 2 * dt_s,
-        noise.accel_bias_drift_mps2_per_sqrt_s ** 2 * dt_s,
-    ])
-    return x_next, F, Q
+    if not math.isnan(turn_rate_tau_s):
+        decay = math.exp(-dt_s / turn_rate_tau_s)
+        F[HEADING_RATE, HEADING_RATE] = decay
+        x_next[HEADING_RATE] = rate * decay
+    return x_next, F, densities * dt_s
 
 
 Measurement = tuple[Array, Array, Array, Array]
@@ -132,11 +162,18 @@ def lateral_accel(x: Array, accel_left_mps2: float, sigma_mps2: float) -> Measur
 
 def steering_rate(x: Array, angle_left_rad: float, wheelbase_m: float,
                   sigma_rad: float) -> Measurement:
-    """Bicycle model (thesis config 1): heading rate ``-speed x tan(steer) / wheelbase``."""
-    tan_d = math.tan(angle_left_rad)
+    """Bicycle model (thesis config 1): heading rate ``-speed x tan(steer - bias) / wheelbase``.
+
+    The steering-angle bias lives in the ``GYRO_BIAS`` slot (this configuration has no gyro);
+    a bias of a few milliradians turns into degrees per second of heading error at speed.
+    """
+    angle = angle_left_rad - x[GYRO_BIAS]
+    tan_d, sec2 = math.tan(angle), 1.0 / math.cos(angle) ** 2
     h = x[HEADING_RATE] + x[SPEED] * tan_d / wheelbase_m
-    sigma = abs(x[SPEED]) * sigma_rad / wheelbase_m / math.cos(angle_left_rad) ** 2 + 0.01
-    return (np.array([0.0]), np.array([h]), _row(rate=1.0, speed=tan_d / wheelbase_m),
+    sigma = abs(x[SPEED]) * sigma_rad * sec2 / wheelbase_m + 0.01
+    return (np.array([0.0]), np.array([h]),
+            _row(rate=1.0, speed=tan_d / wheelbase_m,
+                 gyro_bias=-x[SPEED] * sec2 / wheelbase_m),
             np.array([[sigma ** 2]]))
 
 

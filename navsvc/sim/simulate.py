@@ -34,6 +34,16 @@ _SPEED_BY_HIGHWAY_MPS = {
 }
 
 
+SENSOR_KINDS: dict[str, tuple[str, ...]] = {
+    "all": ("imu", "odometer", "steering", "gps"),
+    "gyro_odometer": ("imu", "odometer", "gps"),
+    "steering_odometer": ("steering", "odometer", "gps"),
+    "gyro_accel": ("imu", "gps"),
+    "gyro_two_accels": ("imu", "gps"),
+    "gps_only": ("gps",),
+}  # the packet kinds a vehicle of each sensor configuration sends
+
+
 @dataclass(frozen=True)
 class SensorErrors:
     """Error model of the simulated sensors (1-sigma values unless said otherwise)."""
@@ -293,7 +303,7 @@ def simulate_drive(graph: RoadGraph, spec: DriveSpec) -> list[dict[str, Any]]:
     return records
 
 
-def _every(truth: _Truth, rate_hz: float, imu_rate_hz: float) -> FloatArray:
+def _every(truth: _Truth, rate_hz: float, imu_rate_hz: float) -> npt.NDArray[np.int64]:
     step = max(int(round(imu_rate_hz / rate_hz)), 1)
     return np.arange(0, len(truth.t), step)
 

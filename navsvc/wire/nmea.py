@@ -7,6 +7,7 @@ talker id is accepted (GP, GN, GL, ...). Time comes from the packet's ``t``, not
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import reduce
 
 from navsvc.errors import PacketError, RejectReason
@@ -96,4 +97,5 @@ def _vtg(f: list[str], t: float) -> GpsVelocity:
                        heading_rad=None if course is None else math.radians(course % 360.0))
 
 
-_PARSERS = {"GGA": _gga, "RMC": _rmc, "VTG": _vtg}
+_PARSERS: dict[str, Callable[[list[str], float], GpsFix | GpsVelocity]] = {
+    "GGA": _gga, "RMC": _rmc, "VTG": _vtg}

@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from navsvc.errors import PacketError
-from navsvc.fusion.engine import FusionConfig, FusionEngine
+from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
+from navsvc.fusion.motion import SensorConfig
 from navsvc.sim.simulate import DriveSpec, simulate_drive
 from navsvc.types import GpsFix, ImuSample, OdometerSample
 from navsvc.wire.packets import parse
@@ -76,13 +77,24 @@ packets = st.one_of(
                                     "speed_mps": s, "heading_deg": 45.0},
               st.floats(-5, 50), st.floats(43.72, 43.75), st.floats(7.40, 7.44),
               st.floats(-1, 120)),
+    st.builds(lambda t, a: {"t": t, "kind": "steering", "angle_deg": a},
+              st.floats(-5, 50), st.floats(-100, 100)),
+    st.builds(lambda t, a, f: {"t": t, "kind": "imu", "accel_fwd_mps2": a,
+                               "accel_left_mps2": f},
+              st.floats(-5, 50), st.floats(-300, 300), st.floats(-50, 50)),
+    st.builds(lambda t, text: {"t": t, "kind": "nmea", "sentence": text},
+              st.floats(-5, 50), st.text(max_size=40) | st.just(
+                  "$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47")),
+    st.builds(lambda t, k: {"t": t, "kind": k}, st.floats(-5, 50), st.text(max_size=8)),
 )
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.lists(packets, max_size=60))
-def test_random_streams_never_raise_and_rejections_change_nothing(stream: list[dict]) -> None:
-    engine = FusionEngine(FusionConfig())
+@settings(max_examples=80, deadline=None)
+@given(st.lists(packets, max_size=60), st.sampled_from(SensorConfig),
+       st.sampled_from(GpsMode))
+def test_random_streams_never_raise_and_rejections_change_nothing(
+        stream: list[dict], sensors: SensorConfig, mode: GpsMode) -> None:
+    engine = FusionEngine(FusionConfig(sensors=sensors, gps_mode=mode))
     for obj in stream:
         before = (engine.state.x.copy(), engine.state.P.copy(), engine.state.t)
         try:
@@ -93,3 +105,4 @@ def test_random_streams_never_raise_and_rejections_change_nothing(stream: list[d
             assert engine.state.t == before[2]
         assert np.all(np.isfinite(engine.state.x)) and np.all(np.isfinite(engine.state.P))
         assert np.allclose(engine.state.P, engine.state.P.T)
+        assert np.all(np.diag(engine.state.P) >= 0.0)

@@ -45,5 +45,5 @@ def test_covariance_stays_symmetric_psd(a: float, b: float, r: float, z0: float,
     assert np.allclose(P2, P2.T)
     assert np.linalg.eigvalsh(P2).min() > -1e-9
     F = np.array([[1.0, 0.1], [0.0, 1.0]])
-    P3 = kalman.predict(x, P2, F, np.eye(2) * z1 ** 2 * 1e-3)
+    P3 = kalman.predict(P2, F, np.full(2, z1 ** 2 * 1e-3))
     assert np.allclose(P3, P3.T) and np.linalg.eigvalsh(P3).min() > -1e-9

@@ -1,0 +1,134 @@
+"""Fusion speed: median µs per predict step and per measurement update, per configuration,
+side by side with FilterPy's ExtendedKalmanFilter running the same model in the same run.
+
+Both filters get identical state, covariance, Jacobians and noise from
+``navsvc.fusion.motion``; the timed work is what each filter does with them (FilterPy's
+``predict``/``update``, our ``kalman.predict``/``innovation``+``gate``+``update``), plus the
+shared model evaluation. Needs the ``bench`` extra (``pip install -e '.[bench]'``).
+
+    python bench/fusion_bench.py [--steps 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from report import median_us, print_table, write_json
+
+from navsvc.fusion import kalman, motion
+from navsvc.fusion.engine import FusionConfig
+from navsvc.fusion.motion import N_STATES, SensorConfig
+
+DT_S = 0.01  # 100 Hz inertial rate
+
+
+def _state() -> tuple[np.ndarray, np.ndarray]:
+    x = np.array([10.0, 20.0, 0.5, 12.0, 0.05, 0.001, 1.01, 0.02])
+    P = np.diag([4.0, 4.0, 0.01, 0.5, 0.01, 1e-4, 1e-3, 1e-2])
+    return x, P
+
+
+def _inertial(config: FusionConfig) -> Callable[[np.ndarray], motion.Measurement] | None:
+    """The measurement each configuration takes at the inertial rate."""
+    s = config.sensors
+    if s == SensorConfig.STEERING_ODOMETER:
+        return lambda x: motion.steering_rate(x, 0.02, config.wheelbase_m, 0.005)
+    if s == SensorConfig.GPS_ONLY:
+        return None
+    return lambda x: motion.gyro_rate(x, -0.05, config.gyro_sigma_rps)
+
+
+def _time(fn: Callable[[], None], steps: int) -> list[float]:
+    out = []
+    clock = time.perf_counter
+    for _ in range(steps):
+        t0 = clock()
+        fn()
+        out.append(clock() - t0)
+    return out
+
+
+def bench(sensors: SensorConfig, steps: int) -> dict[str, float]:
+    config = FusionConfig(sensors=sensors)
+    accel = 0.3 if sensors.speed_from_accel else None
+    x0, P0 = _state()
+    gps = lambda x: motion.gps_position(x, 11.0, 21.0, 3.0)  # noqa: E731
+    inertial = _inertial(config)
+
+    ours = {"x": x0.copy(), "P": P0.copy()}
+
+    def our_predict() -> None:
+        x, F, q = motion.propagate(ours["x"], DT_S, accel, config.process)
+        ours["P"] = kalman.predict(ours["P"], F, q)
+        ours["x"] = x
+
+    def our_update(model: Callable[[np.ndarray], motion.Measurement]) -> Callable[[], None]:
+        def run() -> None:
+            z, h, H, R = model(ours["x"])
+            y, S, nis = kalman.innovation(z, h, H, ours["P"], R)
+            if kalman.gate(nis, len(z), 1e6):
+                ours["x"], ours["P"] = kalman.update(ours["x"], ours["P"], y, S, H, R)
+        return run
+
+    ekf = ExtendedKalmanFilter(dim_x=N_STATES, dim_z=2)
+    ekf.x, ekf.P = x0.copy(), P0.copy()
+
+    def fp_predict() -> None:
+        x, F, q = motion.propagate(ekf.x, DT_S, accel, config.process)
+        ekf.F, ekf.Q = F, np.diag(q)
+        ekf.predict_x = lambda u=0: None  # the state was propagated by the model
+        ekf.x = x
+        ekf.predict()
+
+    def fp_update(model: Callable[[np.ndarray], motion.Measurement]) -> Callable[[], None]:
+        def run() -> None:
+            z, h, H, R = model(ekf.x)
+            ekf.update(z, lambda _x: H, lambda _x: h, R=R)
+        return run
+
+    result = {}
+    for name, ours_fn, theirs_fn in (
+            ("predict", our_predict, fp_predict),
+            ("inertial update", our_update(inertial) if inertial else None,
+             fp_update(inertial) if inertial else None),
+            ("GPS update", our_update(gps), fp_update(gps))):
+        if ours_fn is None or theirs_fn is None:
+            continue
+        ours["x"], ours["P"] = x0.copy(), P0.copy()
+        ekf.x, ekf.P = x0.copy(), P0.copy()
+        a, b = [], []
+        for _ in range(5):  # interleave to share the machine's noise
+            a += _time(ours_fn, steps // 5)
+            b += _time(theirs_fn, steps // 5)
+            ours["x"], ours["P"] = x0.copy(), P0.copy()
+            ekf.x, ekf.P = x0.copy(), P0.copy()
+        result[f"{name} ours_us"] = median_us(a)
+        result[f"{name} filterpy_us"] = median_us(b)
+        assert math.isfinite(result[f"{name} ours_us"])
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--steps", type=int, default=20000)
+    args = parser.parse_args()
+    rows, data = [], {}
+    for sensors in SensorConfig:
+        r = bench(sensors, args.steps)
+        data[sensors.value] = r
+        for step in ("predict", "inertial update", "GPS update"):
+            if f"{step} ours_us" in r:
+                ours, theirs = r[f"{step} ours_us"], r[f"{step} filterpy_us"]
+                rows.append([sensors.value, step, ours, theirs, ours / theirs])
+    print_table(f"Fusion step time, median µs over {args.steps} steps (same model, same run)",
+                ["sensors", "step", "ours µs", "FilterPy µs", "ours / FilterPy"], rows)
+    write_json("fusion_bench", {"steps": args.steps, "results": data})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,230 @@
+"""`navsvc`: simulate drives, replay them through fusion and matching, evaluate the result.
+
+Errors print one line naming the file (and line) and the problem, and exit with status 1;
+usage errors exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
+from navsvc.fusion.engine import FusionConfig, GpsMode
+from navsvc.fusion.motion import SensorConfig
+from navsvc.session import SessionConfig, VehicleSession
+from navsvc.sim.evaluate import Evaluation, evaluate
+from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+from navsvc.wire.jsonl import iter_lines, read_records, write_records
+from navsvc.wire.positions import position_json
+from roadgraph import RoadGraph, RoadGraphError
+
+log = logging.getLogger("navsvc")
+
+SENSOR_CHOICES = [c.value for c in SensorConfig]
+FUSION_CHOICES = [m.value for m in GpsMode]
+
+
+def _outage_arg(text: str) -> tuple[float, float]:
+    start, sep, length = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        value = float(start), float(length)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"outage {text!r}: expected START:LENGTH in seconds, e.g. 120:60") from None
+    if not all(math.isfinite(v) and v >= 0 for v in value) or value[1] == 0:
+        raise argparse.ArgumentTypeError(
+            f"outage {text!r}: START must be >= 0 and LENGTH > 0 seconds")
+    return value
+
+
+def _positive_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a number > 0")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="navsvc", description="Map-matching navigation: sensor fusion onto a road graph.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log what happens")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    sim = sub.add_parser("simulate", help="simulate a drive with truth and sensor packets",
+                         description="Drive a simulated vehicle along random routes of a "
+                         "road-graph database and write its sensor packets and truth records "
+                         "(JSON Lines). Deterministic for a seed.")
+    sim.add_argument("--map", required=True, type=Path, metavar="DB",
+                     help="road-graph database (from `roadgraph import`)")
+    sim.add_argument("-o", "--output", required=True, type=Path, metavar="DRIVE.jsonl",
+                     help="where to write the drive")
+    sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    sim.add_argument("--duration", type=_positive_arg, default=600.0, metavar="S",
+                     help="length of the drive in seconds (default 600)")
+    sim.add_argument("--outage", type=_outage_arg, action="append", default=[],
+                     metavar="START:LENGTH",
+                     help="no GPS from START for LENGTH seconds (repeatable); tunnels on the "
+                     "map also block GPS")
+    sim.add_argument("--sensors", choices=[*SENSOR_KINDS], default="all",
+                     help="which sensors the vehicle has: a sensor configuration, or all of "
+                     "them (default all)")
+    sim.add_argument("--json", action="store_true", help="print a summary as JSON")
+
+    run = sub.add_parser("run", help="replay a drive through fusion and matching",
+                         description="Replay sensor packets through the same fusion and "
+                         "matching code as a live session; write one matched position per "
+                         "GPS epoch (and each second in outages). Truth records are ignored; "
+                         "rejected packets are counted and reported with their line.")
+    run.add_argument("--map", required=True, type=Path, metavar="DB",
+                     help="road-graph database")
+    run.add_argument("-i", "--input", required=True, type=Path, metavar="DRIVE.jsonl",
+                     help="sensor packets (JSON Lines)")
+    run.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.jsonl",
+                     help="where to write matched positions")
+    run.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
+                     help="sensor configuration (default gyro_odometer)")
+    run.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
+                     help="GPS fusion mode (default ekf)")
+    run.add_argument("--json", action="store_true", help="print a summary as JSON")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    ev = sub.add_parser("evaluate", help="accuracy of a run against the truth of its drive",
+                        description="Position error (RMS, 95%%, max) of the output and of "
+                        "the fusion alone beside raw GPS, drift in each GPS outage, heading "
+                        "error, share of epochs on the right road, intersections traversed "
+                        "correctly.")
+    ev.add_argument("--truth", required=True, type=Path, metavar="DRIVE.jsonl",
+                    help="the drive, with its truth records")
+    ev.add_argument("--estimate", required=True, type=Path, metavar="OUT.jsonl",
+                    help="matched positions from `navsvc run`")
+    ev.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    ev.add_argument("--plot", type=Path, metavar="FILE.png",
+                    help="also draw raw GPS, fused track, output and truth (PNG)")
+    ev.add_argument("--map", type=Path, metavar="DB",
+                    help="road-graph database drawn under the plot")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(_COMMANDS[args.command](args))
+    except (NavsvcError, RoadGraphError) as exc:
+        print(f"navsvc: error: {exc}", file=sys.stderr)
+        return 1
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    graph = RoadGraph.open(args.map)
+    spec = DriveSpec(duration_s=args.duration, seed=args.seed, outages=tuple(args.outage),
+                     sensors=SENSOR_KINDS[args.sensors])
+    records = simulate_drive(graph, spec)
+    count = write_records(args.output, records)
+    kinds = Counter(r["kind"] for r in records)
+    log.info("wrote %d records to %s", count, args.output)
+    summary = {"output": str(args.output), "records": count, "by_kind": dict(kinds),
+               "duration_s": args.duration, "seed": args.seed}
+    print(json.dumps(summary) if args.json else
+          f"{args.output}: {count} records ({', '.join(f'{k} {n}' for k, n in kinds.items())})")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    graph = RoadGraph.open(args.map)
+    try:
+        config = SessionConfig(fusion=FusionConfig(sensors=SensorConfig(args.sensors),
+                                                   gps_mode=GpsMode(args.fusion)))
+    except ConfigError as exc:
+        print(f"navsvc: error: {exc}", file=sys.stderr)
+        return 2
+    session = VehicleSession(config, graph)
+    lines = list(iter_lines(args.input))
+    positions: list[dict[str, Any]] = []
+    rejections: list[tuple[int, Rejection]] = []
+    frame = graph.frame
+    for line in tqdm(lines, desc="replay", unit="pkt", disable=args.quiet, leave=False):
+        if line.error is not None:
+            rejections.append((line.number, Rejection(line.number, RejectReason.MALFORMED,
+                                                      line.error)))
+            continue
+        result = session.add_records([line.value], first_index=line.number)
+        rejections += [(line.number, r) for r in result.rejections]
+        positions += [position_json(p, frame) for p in result.positions]
+    write_records(args.output, positions)
+    for number, r in rejections[:20]:
+        log.warning("%s:%d: %s: %s", args.input, number, r.reason.code, r.detail)
+    by_reason = Counter(r.reason.code for _, r in rejections)
+    summary = {"input": str(args.input), "output": str(args.output), "packets": len(lines),
+               "positions": len(positions), "rejected": sum(by_reason.values()),
+               "rejected_by_reason": dict(by_reason)}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"{args.output}: {len(positions)} positions from {len(lines)} packets; "
+              f"{summary['rejected']} rejected"
+              + (f" ({', '.join(f'{k} {n}' for k, n in by_reason.items())})" if by_reason
+                 else ""))
+        for number, r in rejections[:5]:
+            print(f"  {args.input}:{number}: {r.reason.code}: {r.detail}")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    drive = read_records(args.truth)
+    estimates = read_records(args.estimate)
+    try:
+        result = evaluate(drive, estimates)
+    except ValueError as exc:
+        raise NavsvcError(f"{args.truth}: {exc}") from None
+    except KeyError as exc:
+        raise NavsvcError(f"{args.estimate}: a record lacks the field {exc}") from None
+    if args.plot is not None:
+        from navsvc.sim.plot import plot_run  # matplotlib is slow to import
+
+        graph = RoadGraph.open(args.map) if args.map is not None else None
+        plot_run(drive, estimates, args.plot, graph=graph)
+    print(json.dumps(result.to_json(), indent=2) if args.json else format_evaluation(result))
+    return 0
+
+
+def format_evaluation(e: Evaluation) -> str:
+    """A plain-text table of the metrics."""
+    def row(name: str, s: Any) -> str:
+        return f"{name:<22}{s.rms_m:>9.2f}{s.p95_m:>9.2f}{s.max_m:>9.2f}{s.n:>8d}"
+
+    lines = [f"{'error (m)':<22}{'RMS':>9}{'95%':>9}{'max':>9}{'n':>8}",
+             row("output position", e.position), row("fused (unconstrained)", e.fused),
+             row("raw GPS", e.raw_gps),
+             f"fused / raw GPS RMS: {e.fused_to_raw_ratio:.2f}",
+             f"heading error: RMS {e.heading_rms_deg:.2f} deg, 95% {e.heading_p95_deg:.2f} deg"]
+    for o in e.outages:
+        lines.append(f"GPS outage {o.start_s:.0f}-{o.end_s:.0f} s: {o.distance_m:.0f} m driven, "
+                     f"error at end {o.end_error_m:.1f} m ({o.drift_pct:.2f} %), "
+                     f"max {o.max_error_m:.1f} m")
+    if e.on_right_road_share is None:
+        lines.append("road matching: no epoch was matched to a road")
+    else:
+        lines.append(f"on the right road: {100 * e.on_right_road_share:.1f} % of epochs; "
+                     f"intersections correct: {e.intersections_correct}/"
+                     f"{e.intersections_total}")
+    return "\n".join(lines)
+
+
+_COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate}

@@ -1,0 +1,81 @@
+"""Evaluation metrics on hand-made truth and estimates with known errors."""
+
+import math
+
+import pytest
+
+from navsvc.sim.evaluate import evaluate
+from roadgraph import LocalFrame
+
+FRAME = LocalFrame.for_point(7.42, 43.73)
+X0, Y0 = FRAME.to_local(7.42, 43.73)
+
+
+def _ll(x: float, y: float) -> tuple[float, float]:
+    """Metres east and north of a point in Monaco → (lat, lon)."""
+    lon, lat = FRAME.to_wgs84(X0 + x, Y0 + y)
+    return lat, lon
+
+
+def _drive(gps_gap: tuple[float, float] = (50.0, 70.0)) -> list[dict]:
+    records = []
+    for i in range(1001):  # 100 s north at 10 m/s; road (1, 2) then (2, 3) from 50 s
+        t = i / 10
+        lat, lon = _ll(0.0, 10.0 * t)
+        road = (1, 2) if t < 50 else (2, 3)
+        records.append({"t": t, "kind": "truth", "lat": lat, "lon": lon, "heading_deg": 0.0,
+                        "speed_mps": 10.0, "osm_way_id": 1, "u": road[0], "v": road[1]})
+    for t in range(100):
+        if gps_gap[0] < t < gps_gap[1]:
+            continue
+        lat, lon = _ll(4.0, 10.0 * t)  # 4 m east of the truth
+        records.append({"t": float(t), "kind": "gps", "lat": lat, "lon": lon})
+    return records
+
+
+def _estimates(offset_east_m: float, heading_deg: float, edge_from: float) -> list[dict]:
+    out = []
+    for t in range(100):
+        lat, lon = _ll(offset_east_m, 10.0 * t)
+        edge = {"u": 1, "v": 2} if t < edge_from else {"u": 2, "v": 3}
+        out.append({"t": float(t), "lat": lat, "lon": lon, "fused_lat": lat, "fused_lon": lon,
+                    "heading_deg": heading_deg, "edge": edge})
+    return out
+
+
+def test_known_offsets() -> None:
+    e = evaluate(_drive(), _estimates(3.0, 2.0, edge_from=50))
+    assert e.fused.rms_m == pytest.approx(3.0, abs=0.01)
+    assert e.fused.max_m == pytest.approx(3.0, abs=0.01)
+    assert e.raw_gps.rms_m == pytest.approx(4.0, abs=0.01)
+    assert e.fused_to_raw_ratio == pytest.approx(0.75, abs=0.01)
+    assert e.heading_rms_deg == pytest.approx(2.0, abs=1e-6)
+    (outage,) = e.outages
+    assert (outage.start_s, outage.end_s) == (50.0, 70.0)
+    assert outage.distance_m == pytest.approx(200.0, rel=1e-3)
+    assert outage.drift_pct == pytest.approx(1.5, abs=0.01)
+    assert e.on_right_road_share == 1.0
+    assert (e.intersections_correct, e.intersections_total) == (1, 1)
+
+
+def test_heading_wraps_and_wrong_road_counts() -> None:
+    e = evaluate(_drive(), _estimates(0.0, 358.0, edge_from=60))
+    assert e.heading_rms_deg == pytest.approx(2.0, abs=1e-6)
+    assert e.on_right_road_share == pytest.approx(0.9)
+    assert (e.intersections_correct, e.intersections_total) == (1, 1)  # most of 50-100 s
+    e = evaluate(_drive(), _estimates(0.0, 0.0, edge_from=80))
+    assert (e.intersections_correct, e.intersections_total) == (0, 1)
+
+
+def test_no_edges_means_no_road_share() -> None:
+    est = _estimates(1.0, 0.0, 50)
+    for r in est:
+        r["edge"] = None
+    e = evaluate(_drive(), est)
+    assert e.on_right_road_share is None and e.intersections_total == 0
+    assert math.isfinite(e.fused.rms_m)
+
+
+def test_drive_without_truth_is_refused() -> None:
+    with pytest.raises(ValueError, match="no truth"):
+        evaluate([{"t": 0, "kind": "gps", "lat": 0, "lon": 0}], [])
