@@ -100,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sensor configuration (default gyro_odometer)")
     run.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
                      help="GPS fusion mode (default ekf)")
+    run.add_argument("--map-feedback", action="store_true",
+                     help="feed confident matches back into the filter as a road constraint "
+                     "(bounds drift in GPS outages)")
     run.add_argument("--json", action="store_true", help="print a summary as JSON")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -150,7 +153,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     graph = RoadGraph.open(args.map)
     try:
         config = SessionConfig(fusion=FusionConfig(sensors=SensorConfig(args.sensors),
-                                                   gps_mode=GpsMode(args.fusion)))
+                                                   gps_mode=GpsMode(args.fusion)),
+                               map_feedback=args.map_feedback)
     except ConfigError as exc:
         print(f"navsvc: error: {exc}", file=sys.stderr)
         return 2

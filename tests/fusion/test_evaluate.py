@@ -61,7 +61,7 @@ def test_known_offsets() -> None:
 def test_heading_wraps_and_wrong_road_counts() -> None:
     e = evaluate(_drive(), _estimates(0.0, 358.0, edge_from=60))
     assert e.heading_rms_deg == pytest.approx(2.0, abs=1e-6)
-    assert e.on_right_road_share == pytest.approx(0.9)
+    assert e.on_right_road_share == pytest.approx(0.91)  # t=50 s is at the intersection
     assert (e.intersections_correct, e.intersections_total) == (1, 1)  # most of 50-100 s
     e = evaluate(_drive(), _estimates(0.0, 0.0, edge_from=80))
     assert (e.intersections_correct, e.intersections_total) == (0, 1)

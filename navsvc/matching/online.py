@@ -1,0 +1,249 @@
+"""Online map matching of one vehicle's fused estimates (seed: Mayhew 1999, section 5.7).
+
+The vehicle is on one directed edge of the intersection graph at a time:
+
+* **start-up / re-initialisation**: candidate edges from the spatial index within a radius set
+  by the position uncertainty; the best by distance and heading.
+* **between intersections**: project onto the current edge and follow it.
+* **ambiguity region**: once the projection is within ``r_a`` of the edge's end node, every
+  edge reachable from that node within ``2 r_a + 20 m`` (oneway respected, no U-turn except at
+  a dead end), and the current edge itself, is a hypothesis. Each epoch its probability is
+  updated from the distance to the road and from **turn detection**: the heading change
+  accumulated since entering the region against the road's own change of direction (which
+  cancels a constant heading error). The most probable road is reported; leaving the region
+  (further than ``r_a`` from the node) commits to it.
+* **off road / lost**: far from the current road for a while (a car park) → ``off_road`` and
+  a new start-up search each epoch; heading against the road for a while → ``lost``, then
+  start-up.
+
+Ambiguity radius (the seed: expected drift times the map's longest adjacent-node distance;
+also at least ``k`` sigma of the filter's position)::
+
+    r_a = clamp(max(drift_fraction x longest_adjacent_m, sigma_factor x position_sigma_m),
+                min_radius_m, max_radius_m)
+
+Pure: no I/O; :meth:`OnlineMatcher.update` takes an estimate and returns a matched position.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from navsvc.errors import ConfigError
+from navsvc.types import EdgeRef, FusedEstimate, MatchedPosition, MatchState
+from roadgraph import EdgeKey, EdgeProjection, RoadGraph
+from roadgraph.geometry import wrap_angle_rad
+
+
+@dataclass(frozen=True)
+class MatcherConfig:
+    """Matcher parameters (metres, seconds, radians)."""
+
+    drift_fraction: float = 0.04  # seed: dead-reckoning drift, 4 % of distance travelled
+    sigma_factor: float = 3.0
+    min_radius_m: float = 12.0
+    max_radius_m: float = 35.0
+    road_sigma_m: float = 4.0  # spread of positions around the road centre line
+    turn_sigma_rad: float = math.radians(20.0)
+    prior_keep: float = 0.85  # weight of the previous probabilities at each epoch
+    confident_probability: float = 0.8  # below this a region reports ``ambiguous``
+    startup_radius_m: tuple[float, float] = (25.0, 150.0)  # clamp of 3 sigma + 15 m
+    off_road_distance_m: float = 30.0  # (or 4 sigma, the larger) from the current road ...
+    off_road_after_s: float = 3.0  # ... for this long → off road
+    lost_heading_rad: float = math.radians(60.0)  # against the road ...
+    lost_after_s: float = 4.0  # ... for this long while moving → lost
+    min_speed_for_heading_mps: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.min_radius_m <= self.max_radius_m:
+            raise ConfigError("need 0 < min_radius_m <= max_radius_m")
+        if not 0.0 <= self.prior_keep < 1.0:
+            raise ConfigError("prior_keep must be in [0, 1)")
+
+
+@dataclass
+class _Region:
+    """The ambiguity region around one intersection being passed."""
+
+    node: int
+    radius_m: float
+    entry_heading_rad: float  # the estimate's heading on entry
+    entry_road_bearing_rad: float  # the road's direction there
+    probabilities: dict[EdgeKey, float] = field(default_factory=dict)
+
+
+@dataclass
+class MatcherState:
+    """Everything one vehicle's matcher remembers (plain data)."""
+
+    edge: EdgeKey | None = None
+    region: _Region | None = None
+    far_since_t: float | None = None
+    against_since_t: float | None = None
+    off_road: bool = False
+
+
+class OnlineMatcher:
+    """One vehicle's matcher: ``update`` with each estimate, get the matched position."""
+
+    def __init__(self, graph: RoadGraph, config: MatcherConfig = MatcherConfig()) -> None:
+        self.graph = graph
+        self.config = config
+        self.state = MatcherState()
+        self._seed_radius_m = config.drift_fraction * graph.info.max_adjacent_node_distance_m
+
+    def ambiguity_radius_m(self, position_sigma_m: float) -> float:
+        c = self.config
+        r = max(self._seed_radius_m, c.sigma_factor * position_sigma_m)
+        return min(max(r, c.min_radius_m), c.max_radius_m)
+
+    # --- one epoch -----------------------------------------------------------------------
+    def update(self, e: FusedEstimate) -> MatchedPosition:
+        if not e.initialized:
+            return MatchedPosition(e, MatchState.INITIALIZING, e.x_m, e.y_m)
+        s = self.state
+        if s.edge is None:
+            return self._start(e)
+        proj = self.graph.project(s.edge, e.x_m, e.y_m)
+        lost = self._check_lost(e, proj)
+        if lost is not None:
+            return lost
+        if s.region is None and proj.remaining_m <= self.ambiguity_radius_m(e.position_sigma_m):
+            self._enter_region(e, proj)
+        if s.region is not None:
+            return self._in_region(e, proj)
+        return self._on_road(e, proj)
+
+    def _start(self, e: FusedEstimate) -> MatchedPosition:
+        """Start-up and re-initialisation: the best nearby edge by distance and heading."""
+        c, s = self.config, self.state
+        lo, hi = c.startup_radius_m
+        radius = min(max(3.0 * e.position_sigma_m + 15.0, lo), hi)
+        best: tuple[float, EdgeProjection] | None = None
+        for near in self.graph.edges_near(e.x_m, e.y_m, radius):
+            proj = self.graph.project(near.edge, e.x_m, e.y_m)
+            score = self._likelihood(e, proj, self._heading_error(e, proj))
+            if best is None or score > best[0]:
+                best = (score, proj)
+        if best is None or best[0] <= 0.0:
+            s.off_road = True
+            return MatchedPosition(e, MatchState.OFF_ROAD, e.x_m, e.y_m)
+        s.edge, s.region, s.far_since_t, s.against_since_t = best[1].edge, None, None, None
+        s.off_road = False
+        return self._on_road(e, best[1])
+
+    def _check_lost(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition | None:
+        """Off road (far from the road) or lost (moving against it) for long enough."""
+        c, s = self.config, self.state
+        far = proj.distance_m > max(c.off_road_distance_m, 4.0 * e.position_sigma_m)
+        s.far_since_t = (s.far_since_t if s.far_since_t is not None else e.t) if far else None
+        against = e.speed_mps >= c.min_speed_for_heading_mps and s.region is None and \
+            abs(self._heading_error(e, proj)) > c.lost_heading_rad
+        s.against_since_t = (s.against_since_t if s.against_since_t is not None else e.t) \
+            if against else None
+        if s.far_since_t is not None and e.t - s.far_since_t >= c.off_road_after_s:
+            s.edge = None
+            return self._start(e)
+        if s.against_since_t is not None and e.t - s.against_since_t >= c.lost_after_s:
+            s.edge, s.region, s.against_since_t = None, None, None
+            return MatchedPosition(e, MatchState.LOST, e.x_m, e.y_m,
+                                   distance_to_road_m=proj.distance_m)
+        return None
+
+    # --- ambiguity regions ---------------------------------------------------------------
+    def _enter_region(self, e: FusedEstimate, proj: EdgeProjection) -> None:
+        s = self.state
+        assert s.edge is not None
+        radius = self.ambiguity_radius_m(e.position_sigma_m)
+        hypotheses = [s.edge, *self._reachable(s.edge, 2.0 * radius + 20.0)]
+        s.region = _Region(node=s.edge.v, radius_m=radius, entry_heading_rad=e.heading_rad,
+                           entry_road_bearing_rad=proj.bearing_rad,
+                           probabilities={h: 1.0 / len(hypotheses) for h in hypotheses})
+
+    def _reachable(self, edge: EdgeKey, reach_m: float) -> list[EdgeKey]:
+        """Edges reachable from ``edge.v`` within ``reach_m`` (no U-turns but at dead ends)."""
+        found: list[EdgeKey] = []
+        frontier = [(edge, 0.0)]
+        while frontier:
+            came, travelled = frontier.pop()
+            outs = self.graph.out_edges(came.v)
+            turning = [o for o in outs if o.v != came.u] or outs  # U-turn only at dead ends
+            for out in turning:
+                key = EdgeKey(out.u, out.v, out.key)
+                if key in found or key == edge:
+                    continue
+                found.append(key)
+                if travelled + out.length_m < reach_m:
+                    frontier.append((key, travelled + out.length_m))
+        return found
+
+    def _in_region(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition:
+        c, s = self.config, self.state
+        region = s.region
+        assert region is not None and s.edge is not None
+        turned = wrap_angle_rad(e.heading_rad - region.entry_heading_rad)
+        projections = {h: self.graph.project(h, e.x_m, e.y_m) for h in region.probabilities}
+        posterior = {}
+        for h, p in projections.items():
+            expected = wrap_angle_rad(p.bearing_rad - region.entry_road_bearing_rad)
+            prior = c.prior_keep * region.probabilities[h] + \
+                (1.0 - c.prior_keep) / len(projections)
+            posterior[h] = prior * self._likelihood(e, p, wrap_angle_rad(turned - expected))
+        total = sum(posterior.values())
+        if total <= 0.0:  # nothing explains the motion
+            s.edge, s.region = None, None
+            return MatchedPosition(e, MatchState.LOST, e.x_m, e.y_m,
+                                   distance_to_road_m=proj.distance_m)
+        region.probabilities = {h: v / total for h, v in posterior.items()}
+        best = max(region.probabilities, key=region.probabilities.__getitem__)
+        node = self.graph.node(region.node)
+        if math.hypot(e.x_m - node.x_m, e.y_m - node.y_m) > region.radius_m and \
+                (best != s.edge or projections[best].remaining_m > region.radius_m):
+            s.edge, s.region = best, None  # leaving the region: commit
+            if projections[best].remaining_m <= self.ambiguity_radius_m(e.position_sigma_m):
+                self._enter_region(e, projections[best])
+                return self._in_region(e, projections[best])
+            return self._on_road(e, projections[best])
+        confident = region.probabilities[best] >= c.confident_probability
+        if not confident:
+            ranked = sorted(region.probabilities.items(), key=lambda kv: -kv[1])
+            candidates = tuple((self._edge_ref(projections[h]), prob)
+                               for h, prob in ranked if prob >= 0.01)
+            norm = sum(prob for _, prob in candidates)
+            candidates = tuple((ref, prob / norm) for ref, prob in candidates)
+        else:
+            candidates = ()
+        return self._position(e, projections[best],
+                              MatchState.ON_ROAD if confident else MatchState.AMBIGUOUS,
+                              candidates)
+
+    # --- scoring and output --------------------------------------------------------------
+    def _heading_error(self, e: FusedEstimate, proj: EdgeProjection) -> float:
+        if e.speed_mps < self.config.min_speed_for_heading_mps:
+            return 0.0  # a stopped vehicle's heading says little about the road
+        return wrap_angle_rad(e.heading_rad - proj.bearing_rad)
+
+    def _likelihood(self, e: FusedEstimate, proj: EdgeProjection, angle_error_rad: float) -> float:
+        c = self.config
+        sigma_d2 = c.road_sigma_m ** 2 + e.position_sigma_m ** 2
+        sigma_h = math.hypot(c.turn_sigma_rad, e.heading_sigma_rad)
+        if e.speed_mps < c.min_speed_for_heading_mps:
+            angle_error_rad = 0.0
+        return math.exp(-0.5 * proj.distance_m ** 2 / sigma_d2
+                        - 0.5 * (angle_error_rad / sigma_h) ** 2)
+
+    def _on_road(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition:
+        return self._position(e, proj, MatchState.ON_ROAD)
+
+    def _edge_ref(self, proj: EdgeProjection) -> EdgeRef:
+        record = self.graph.edge(proj.edge)
+        return EdgeRef(u=record.u, v=record.v, key=record.key, osm_way_ids=record.osm_way_ids,
+                       name=record.name, offset_m=proj.offset_m, length_m=record.length_m)
+
+    def _position(self, e: FusedEstimate, proj: EdgeProjection, state: MatchState,
+                  candidates: tuple[tuple[EdgeRef, float], ...] = ()) -> MatchedPosition:
+        return MatchedPosition(
+            estimate=e, state=state, x_m=proj.x_m, y_m=proj.y_m, edge=self._edge_ref(proj),
+            distance_to_road_m=proj.distance_m, candidates=candidates,
+            next_node=proj.edge.v, distance_to_next_node_m=proj.remaining_m)

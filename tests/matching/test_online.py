@@ -1,0 +1,104 @@
+"""The online matcher on a hand-made + junction (pure, no I/O)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from navsvc.errors import ConfigError
+from navsvc.matching.online import MatcherConfig, OnlineMatcher
+from navsvc.types import FusedEstimate, MatchedPosition, MatchState
+from roadgraph import RoadGraph
+from tests.roadgraph.test_graph import FRAME, cross_graph
+
+X0, Y0 = FRAME.to_local(7.42, 43.73)
+
+
+def estimate(t: float, x: float, y: float, heading_deg: float, speed: float = 8.0,
+             sigma_m: float = 3.0) -> FusedEstimate:
+    return FusedEstimate(t=t, x_m=X0 + x, y_m=Y0 + y, heading_rad=math.radians(heading_deg),
+                         speed_mps=speed, yaw_rate_rps=0.0,
+                         position_cov_m2=np.eye(2) * sigma_m ** 2,
+                         heading_sigma_rad=math.radians(2.0))
+
+
+def drive_turn(graph: RoadGraph, turn_to: str, heading_bias_deg: float = 0.0,
+               lateral_m: float = 0.0) -> list[MatchedPosition]:
+    """From 90 m south of the junction northward at 8 m/s, then east or on north, at 10 Hz."""
+    matcher = OnlineMatcher(graph)
+    out, t = [], 0.0
+    for k in range(113):  # 90 m north
+        y = -90.0 + 0.8 * k
+        out.append(matcher.update(estimate(t, lateral_m, min(y, 0.0), heading_bias_deg)))
+        t += 0.1
+    for k in range(1, 100):  # 80 m more, east or north
+        d = 0.8 * k
+        x, y, h = (d, lateral_m, 90.0) if turn_to == "east" else (lateral_m, d, 0.0)
+        out.append(matcher.update(estimate(t, x, y, h + heading_bias_deg)))
+        t += 0.1
+    return out
+
+
+def edge_of(p: MatchedPosition) -> tuple[int, int] | None:
+    return None if p.edge is None else (p.edge.u, p.edge.v)
+
+
+@pytest.mark.parametrize(("turn_to", "last_edge"), [("east", (0, 2)), ("north", (0, 1))])
+@pytest.mark.parametrize("bias_deg", [0.0, 12.0, -12.0])
+def test_turn_and_straight_through(turn_to: str, last_edge: tuple[int, int],
+                                   bias_deg: float) -> None:
+    out = drive_turn(cross_graph(), turn_to, heading_bias_deg=bias_deg, lateral_m=2.0)
+    assert edge_of(out[0]) == (3, 0)
+    assert edge_of(out[-1]) == last_edge and out[-1].state == MatchState.ON_ROAD
+    # the matched point lies on the road, offset grows along it, next node is its end
+    assert out[-1].distance_to_road_m == pytest.approx(2.0, abs=0.01)
+    assert out[-1].next_node == last_edge[1]
+    assert out[-1].distance_to_next_node_m == pytest.approx(100.0 - 79.2, abs=0.5)
+
+
+def test_no_u_turn_and_oneway_respected_in_candidates() -> None:
+    out = drive_turn(cross_graph(), "east")
+    seen = {(c.u, c.v) for p in out for c, _ in p.candidates}
+    assert (0, 3) not in seen and (0, 4) not in seen
+    for p in out:
+        if p.candidates:
+            assert sum(prob for _, prob in p.candidates) == pytest.approx(1.0)
+
+
+def test_ambiguity_radius_rule() -> None:
+    graph = cross_graph()  # longest adjacent-node distance 100 m → 4 m from the seed rule
+    matcher = OnlineMatcher(graph, MatcherConfig(min_radius_m=10.0, max_radius_m=30.0))
+    assert matcher.ambiguity_radius_m(1.0) == 10.0  # clamped up
+    assert matcher.ambiguity_radius_m(5.0) == 15.0  # 3 sigma
+    assert matcher.ambiguity_radius_m(50.0) == 30.0  # clamped down
+    with pytest.raises(ConfigError):
+        MatcherConfig(min_radius_m=40.0, max_radius_m=30.0)
+
+
+def test_initializing_then_startup_picks_road_by_heading() -> None:
+    matcher = OnlineMatcher(cross_graph())
+    e = estimate(0.0, 1.0, -50.0, 0.0)
+    first = matcher.update(FusedEstimate(**{**e.__dict__, "initialized": False}))
+    assert first.state == MatchState.INITIALIZING and first.edge is None
+    assert edge_of(matcher.update(e)) == (3, 0)  # heading north: the northbound edge
+    other = OnlineMatcher(cross_graph())
+    assert edge_of(other.update(estimate(0.0, 1.0, -50.0, 180.0))) == (0, 3)
+
+
+def test_off_road_after_a_while_then_back() -> None:
+    matcher = OnlineMatcher(cross_graph())
+    matcher.update(estimate(0.0, 0.0, -50.0, 0.0))
+    states = [matcher.update(estimate(0.1 * k, 60.0, -60.0, 0.0, speed=1.0)).state
+              for k in range(1, 60)]
+    assert states[0] == MatchState.ON_ROAD  # not at once
+    assert states[-1] == MatchState.OFF_ROAD
+    back = matcher.update(estimate(7.0, 0.5, -40.0, 0.0))
+    assert back.state == MatchState.ON_ROAD and edge_of(back) == (3, 0)
+
+
+def test_lost_when_moving_against_the_road() -> None:
+    matcher = OnlineMatcher(cross_graph())
+    matcher.update(estimate(0.0, 0.0, -80.0, 0.0))
+    states = [matcher.update(estimate(0.1 * k, 0.0, -80.0 + 0.8 * k, 90.0)).state
+              for k in range(1, 50)]
+    assert MatchState.LOST in states
