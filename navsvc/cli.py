@@ -21,11 +21,14 @@ from tqdm import tqdm
 from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
 from navsvc.fusion.engine import FusionConfig, GpsMode
 from navsvc.fusion.motion import SensorConfig
+from navsvc.matching.hmm import HmmConfig
+from navsvc.matching.route import match_trace
 from navsvc.session import SessionConfig, VehicleSession
 from navsvc.sim.evaluate import Evaluation, evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.wire.jsonl import iter_lines, read_records, write_records
 from navsvc.wire.positions import position_json
+from navsvc.wire.traces import read_trace
 from roadgraph import RoadGraph, RoadGraphError
 
 log = logging.getLogger("navsvc")
@@ -120,6 +123,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also draw raw GPS, fused track, output and truth (PNG)")
     ev.add_argument("--map", type=Path, metavar="DB",
                     help="road-graph database drawn under the plot")
+
+    mt = sub.add_parser("match", help="match a whole GPS trace to a route (offline)",
+                        description="Hidden-Markov-model matching (Newson & Krumm 2009) of a "
+                        "GPX, GeoJSON, CSV or JSON Lines trace. Points are sorted by time and "
+                        "exact duplicates dropped; a gap the road graph cannot bridge starts a "
+                        "new route segment.")
+    mt.add_argument("trace", type=Path, metavar="TRACE",
+                    help="the trace (.gpx, .geojson/.json, .csv, .jsonl)")
+    mt.add_argument("--map", required=True, type=Path, metavar="DB", help="road-graph database")
+    mt.add_argument("-o", "--output", type=Path, metavar="ROUTE.json",
+                    help="write the route JSON here (default: stdout)")
+    mt.add_argument("--sigma", type=_positive_arg, default=HmmConfig.sigma_m, metavar="M",
+                    help=f"GPS error in metres (default {HmmConfig.sigma_m:g})")
+    mt.add_argument("--json", action="store_true",
+                    help="print the whole route JSON even with -o (default: a summary)")
     return parser
 
 
@@ -231,4 +249,24 @@ def format_evaluation(e: Evaluation) -> str:
     return "\n".join(lines)
 
 
-_COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate}
+def _cmd_match(args: argparse.Namespace) -> int:
+    graph = RoadGraph.open(args.map)
+    fixes = read_trace(args.trace)
+    route = match_trace(graph, fixes, HmmConfig(sigma_m=args.sigma, beta_m=2.0 * args.sigma))
+    text = json.dumps(route, ensure_ascii=False)
+    if args.output is None or args.json:
+        print(text)
+    if args.output is not None:
+        try:
+            args.output.write_text(text, encoding="utf-8")
+        except OSError as exc:
+            raise NavsvcError(f"{args.output}: cannot write ({exc.strerror})") from None
+        if not args.json:
+            streets = [s for seg in route["segments"] for s in seg["streets"] if s]
+            print(f"{args.output}: {len(route['segments'])} segment(s), "
+                  f"{route['length_m']:.0f} m; streets: {', '.join(streets) or '-'}")
+    return 0
+
+
+_COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate,
+             "match": _cmd_match}

@@ -77,7 +77,7 @@ class FusionConfig:
     steering_sigma_rad: float = 0.005
     wheelbase_m: float = 2.7
     ticks_per_m: float = 27.3  # thesis: ABS pulses per metre
-    gps_uere_m: float = 2.5  # sigma = HDOP x UERE when no accuracy_m is given
+    gps_uere_m: float = 3.5  # sigma = HDOP x UERE when no accuracy_m is given (tuned: bench)
     gps_default_sigma_m: float = 5.0
     gps_velocity_sigma_mps: float = 0.5
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold

@@ -1,0 +1,195 @@
+"""Offline matching of a whole trace: hidden Markov model and Viterbi (Newson & Krumm 2009).
+
+States are candidate positions on directed edges near each point (from the spatial index).
+Emission: Gaussian in the distance from the point to the road (``sigma_m``). Transition:
+exponential in ``|route distance - straight distance|`` between consecutive points
+(``beta_m``), the route distance by shortest path on the graph (bounded search). Points closer
+than ``2 sigma`` to the last kept one are skipped (as GraphHopper does); where no candidate
+of one point can reach any of the next, the trace is split into a new segment.
+
+The route between matched points is rebuilt by shortest path. Pure: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import networkx as nx
+
+from navsvc.errors import TraceError
+from roadgraph import EdgeKey, EdgeProjection, RoadGraph
+
+
+@dataclass(frozen=True)
+class HmmConfig:
+    sigma_m: float = 10.0  # GPS error (GraphHopper's default measurement_error_sigma)
+    beta_m: float = 2.0 * 10.0  # transition scale (GraphHopper: beta 2 in its own units)
+    search_radius_sigmas: float = 3.0
+    max_candidates: int = 8
+    max_route_factor: float = 5.0  # route search stops at this x straight distance + 500 m
+    max_points: int = 20_000  # per request
+
+
+@dataclass(frozen=True)
+class TracePoint:
+    t: float
+    x_m: float
+    y_m: float
+
+
+@dataclass(frozen=True)
+class PointMatch:
+    """Where one trace point was matched (None: skipped as too close, or unmatched)."""
+
+    index: int
+    projection: EdgeProjection | None
+    segment: int | None
+
+
+@dataclass
+class RouteSegment:
+    """A contiguous matched route."""
+
+    edges: list[EdgeKey] = field(default_factory=list)
+    start_offset_m: float = 0.0  # on the first edge
+    end_offset_m: float = 0.0  # on the last edge
+    length_m: float = 0.0
+
+
+@dataclass
+class MatchResult:
+    segments: list[RouteSegment]
+    points: list[PointMatch]
+
+
+def _distance(a: TracePoint, b: TracePoint) -> float:
+    return math.hypot(a.x_m - b.x_m, a.y_m - b.y_m)
+
+
+def _keep(points: list[TracePoint], min_gap_m: float) -> list[int]:
+    """Indices of the points to match: the first, the last, and those ``min_gap_m`` from the
+    previous kept one."""
+    kept = [0]
+    for i in range(1, len(points) - 1):
+        if _distance(points[i], points[kept[-1]]) > min_gap_m:
+            kept.append(i)
+    if len(points) > 1:
+        kept.append(len(points) - 1)
+    return kept
+
+
+class HmmMatcher:
+    """Matches traces on one graph (holds the graph and a cache of route searches)."""
+
+    def __init__(self, graph: RoadGraph, config: HmmConfig = HmmConfig()) -> None:
+        self.graph = graph
+        self.config = config
+        self._lengths = {(u, v): min(d["length"] for d in graph.graph[u][v].values())
+                         for u, v in graph.graph.edges()}
+
+    def candidates(self, p: TracePoint) -> list[EdgeProjection]:
+        c = self.config
+        near = self.graph.edges_near(p.x_m, p.y_m, c.search_radius_sigmas * c.sigma_m)
+        return [self.graph.project(n.edge, p.x_m, p.y_m) for n in near[:c.max_candidates]]
+
+    def route_distance(self, a: EdgeProjection, b: EdgeProjection, limit_m: float,
+                       cache: dict[int, dict[int, float]]) -> float:
+        """Driving distance from projection ``a`` to ``b`` (inf beyond ``limit_m``)."""
+        if a.edge == b.edge and b.offset_m >= a.offset_m - 1e-6:
+            return b.offset_m - a.offset_m
+        source = a.edge.v
+        if source not in cache:
+            cache[source] = nx.single_source_dijkstra_path_length(
+                self.graph.graph, source, cutoff=limit_m, weight="length")
+        between = cache[source].get(b.edge.u)
+        if between is None:
+            return math.inf
+        return a.remaining_m + between + b.offset_m
+
+    def match(self, points: list[TracePoint]) -> MatchResult:
+        c = self.config
+        if not points:
+            raise TraceError("the trace has no points")
+        if len(points) > c.max_points:
+            raise TraceError(f"the trace has {len(points)} points; the limit is {c.max_points}")
+        kept = _keep(points, 2.0 * c.sigma_m)
+        matches: dict[int, tuple[EdgeProjection, int]] = {}
+        segments: list[RouteSegment] = []
+        chain: list[tuple[int, EdgeProjection]] = []
+        layer: list[tuple[EdgeProjection, float, int]] = []  # candidate, log prob, back index
+        history: list[tuple[int, list[tuple[EdgeProjection, float, int]]]] = []
+        for i in kept:
+            cands = self.candidates(points[i])
+            if not cands:
+                continue  # nothing near: the point is left unmatched
+            emission = [-0.5 * (p.distance_m / c.sigma_m) ** 2 for p in cands]
+            if not layer:
+                layer = [(p, e, -1) for p, e in zip(cands, emission)]
+                history = [(i, layer)]
+                continue
+            prev_i = history[-1][0]
+            straight = _distance(points[prev_i], points[i])
+            limit = c.max_route_factor * straight + 500.0
+            cache: dict[int, dict[int, float]] = {}
+            new_layer = []
+            for p, e in zip(cands, emission):
+                best, back = -math.inf, -1
+                for k, (q, score, _) in enumerate(layer):
+                    if score == -math.inf:
+                        continue
+                    route = self.route_distance(q, p, limit, cache)
+                    if route == math.inf:
+                        continue
+                    s = score - abs(route - straight) / c.beta_m
+                    if s > best:
+                        best, back = s, k
+                new_layer.append((p, best + e if back >= 0 else -math.inf, back))
+            if all(s == -math.inf for _, s, _ in new_layer):  # a gap it cannot bridge: split
+                chain = self._backtrack(history)
+                segments.append(self._route(chain))
+                for j, proj in chain:
+                    matches[j] = (proj, len(segments) - 1)
+                layer = [(p, e, -1) for p, e in zip(cands, emission)]
+                history = [(i, layer)]
+                continue
+            layer = new_layer
+            history.append((i, layer))
+        if history:
+            chain = self._backtrack(history)
+            segments.append(self._route(chain))
+            for j, proj in chain:
+                matches[j] = (proj, len(segments) - 1)
+        return MatchResult(segments, [
+            PointMatch(i, matches[i][0] if i in matches else None,
+                       matches[i][1] if i in matches else None) for i in range(len(points))])
+
+    @staticmethod
+    def _backtrack(history: list[tuple[int, list[tuple[EdgeProjection, float, int]]]]
+                   ) -> list[tuple[int, EdgeProjection]]:
+        last = history[-1][1]
+        k = max(range(len(last)), key=lambda j: last[j][1])
+        chain = []
+        for i, layer in reversed(history):
+            proj, _, back = layer[k]
+            chain.append((i, proj))
+            k = back
+        return chain[::-1]
+
+    def _route(self, chain: list[tuple[int, EdgeProjection]]) -> RouteSegment:
+        """The edges driven through the matched positions, in order."""
+        first = chain[0][1]
+        seg = RouteSegment(edges=[first.edge], start_offset_m=first.offset_m,
+                           end_offset_m=first.offset_m)
+        for (_, a), (_, b) in zip(chain[:-1], chain[1:]):
+            if a.edge == b.edge and b.offset_m >= a.offset_m - 1e-6:
+                seg.length_m += b.offset_m - a.offset_m
+                continue
+            seg.length_m += a.remaining_m + b.offset_m
+            if a.edge.v != b.edge.u:
+                path = self.graph.shortest_path(a.edge.v, b.edge.u)
+                seg.edges += path
+                seg.length_m += sum(self.graph.edge(e).length_m for e in path)
+            seg.edges.append(b.edge)
+        seg.end_offset_m = chain[-1][1].offset_m
+        return seg
