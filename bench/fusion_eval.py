@@ -39,7 +39,8 @@ def _one_drive(job: tuple[str, int, float, bool]) -> list[dict[str, Any]]:
                      tunnels_block_gps=tunnels)
     drive = simulate_drive(graph, spec)
     rows = []
-    combos = product(SensorConfig, GpsMode) if not tunnels else \
+    combos = [(s, m) for s, m in product(SensorConfig, GpsMode)
+              if s != SensorConfig.GPS_ONLY or m == GpsMode.EKF] if not tunnels else \
         [(SensorConfig.GYRO_ODOMETER, GpsMode.EKF)]
     for sensors, mode in combos:
         kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}

@@ -107,6 +107,9 @@ class FusionConfig:
                 raise ConfigError(f"{name} must be a finite number > 0, got {value}")
         if self.sensors == SensorConfig.GPS_ONLY and self.process.turn_rate_tau_s is None:
             object.__setattr__(self, "process", replace(self.process, turn_rate_tau_s=3.0))
+        if self.sensors == SensorConfig.GPS_ONLY and self.gps_mode != GpsMode.EKF:
+            raise ConfigError("gps_only needs gps_mode ekf: the rules and fuzzy modes blend GPS "
+                              "into dead reckoning, and gps_only has none")
         if self.reorder_window_s < 0.0:
             raise ConfigError(f"reorder_window_s must be >= 0, got {self.reorder_window_s}")
 

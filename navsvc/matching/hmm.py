@@ -128,23 +128,8 @@ class HmmMatcher:
                 layer = [(p, e, -1) for p, e in zip(cands, emission)]
                 history = [(i, layer)]
                 continue
-            prev_i = history[-1][0]
-            straight = _distance(points[prev_i], points[i])
-            limit = c.max_route_factor * straight + 500.0
-            cache: dict[int, dict[int, float]] = {}
-            new_layer = []
-            for p, e in zip(cands, emission):
-                best, back = -math.inf, -1
-                for k, (q, score, _) in enumerate(layer):
-                    if score == -math.inf:
-                        continue
-                    route = self.route_distance(q, p, limit, cache)
-                    if route == math.inf:
-                        continue
-                    s = score - abs(route - straight) / c.beta_m
-                    if s > best:
-                        best, back = s, k
-                new_layer.append((p, best + e if back >= 0 else -math.inf, back))
+            new_layer = self._transition(layer, points[history[-1][0]], points[i], cands,
+                                         emission)
             if all(s == -math.inf for _, s, _ in new_layer):  # a gap it cannot bridge: split
                 chain = self._backtrack(history)
                 segments.append(self._route(chain))
@@ -163,6 +148,29 @@ class HmmMatcher:
         return MatchResult(segments, [
             PointMatch(i, matches[i][0] if i in matches else None,
                        matches[i][1] if i in matches else None) for i in range(len(points))])
+
+    def _transition(self, layer: list[tuple[EdgeProjection, float, int]], prev: TracePoint,
+                    point: TracePoint, cands: list[EdgeProjection],
+                    emission: list[float]) -> list[tuple[EdgeProjection, float, int]]:
+        """One Viterbi step: each candidate's best predecessor and score."""
+        c = self.config
+        straight = _distance(prev, point)
+        limit = c.max_route_factor * straight + 500.0
+        cache: dict[int, dict[int, float]] = {}
+        new_layer = []
+        for p, e in zip(cands, emission):
+            best, back = -math.inf, -1
+            for k, (q, score, _) in enumerate(layer):
+                if score == -math.inf:
+                    continue
+                route = self.route_distance(q, p, limit, cache)
+                if route == math.inf:
+                    continue
+                s = score - abs(route - straight) / c.beta_m
+                if s > best:
+                    best, back = s, k
+            new_layer.append((p, best + e if back >= 0 else -math.inf, back))
+        return new_layer
 
     @staticmethod
     def _backtrack(history: list[tuple[int, list[tuple[EdgeProjection, float, int]]]]

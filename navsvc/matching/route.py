@@ -21,7 +21,7 @@ def _collapse(values: list[Any]) -> list[Any]:
 
 def _segment_json(graph: RoadGraph, seg: RouteSegment) -> dict[str, Any]:
     records = [graph.edge(e) for e in seg.edges]
-    parts = []
+    parts: list[np.ndarray] = []
     for i, r in enumerate(records):
         start = seg.start_offset_m if i == 0 else 0.0
         end = seg.end_offset_m if i == len(records) - 1 else r.length_m
@@ -47,8 +47,11 @@ def trace_length_m(graph: RoadGraph, fixes: list[TraceFix]) -> float:
     return float(sum(math.dist(a, b) for a, b in zip(xy[:-1], xy[1:])))
 
 
+DEFAULT_CONFIG = HmmConfig()
+
+
 def match_trace(graph: RoadGraph, fixes: list[TraceFix],
-                config: HmmConfig = HmmConfig()) -> dict[str, Any]:
+                config: HmmConfig = DEFAULT_CONFIG) -> dict[str, Any]:
     """Match a trace (sorted by time and deduplicated first) and describe the route."""
     fixes = clean(fixes)
     points = [TracePoint(f.t, *graph.frame.to_local(f.lon_deg, f.lat_deg)) for f in fixes]

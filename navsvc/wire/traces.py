@@ -175,7 +175,7 @@ def _csv(text: str, name: str) -> list[TraceFix]:
 
 
 def _jsonl(text: str, name: str) -> list[TraceFix]:
-    out = []
+    out: list[TraceFix] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from navsvc.errors import PacketError
+from navsvc.errors import ConfigError, PacketError
 from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
 from navsvc.fusion.motion import SensorConfig
 from navsvc.sim.simulate import DriveSpec, simulate_drive
@@ -94,6 +94,10 @@ packets = st.one_of(
        st.sampled_from(GpsMode))
 def test_random_streams_never_raise_and_rejections_change_nothing(
         stream: list[dict], sensors: SensorConfig, mode: GpsMode) -> None:
+    if sensors == SensorConfig.GPS_ONLY and mode != GpsMode.EKF:
+        with pytest.raises(ConfigError, match="gps_only needs gps_mode ekf"):
+            FusionConfig(sensors=sensors, gps_mode=mode)
+        return
     engine = FusionEngine(FusionConfig(sensors=sensors, gps_mode=mode))
     for obj in stream:
         before = (engine.state.x.copy(), engine.state.P.copy(), engine.state.t)
