@@ -10,14 +10,12 @@ at 300 s. Every combination replays the same packets through ``VehicleSession`` 
 
 from __future__ import annotations
 
-import argparse
 import statistics
 from concurrent.futures import ProcessPoolExecutor
 from itertools import product
-from pathlib import Path
 from typing import Any
 
-from report import print_table, write_json
+from report import drives_parser, print_table, write_json
 from tqdm import tqdm
 
 from navsvc.fusion.engine import FusionConfig, GpsMode
@@ -28,7 +26,6 @@ from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.wire.positions import position_json
 from roadgraph import RoadGraph
 
-ROOT = Path(__file__).resolve().parent.parent
 OUTAGE = (300.0, 60.0)
 
 
@@ -71,12 +68,7 @@ def _max(rows: list[dict[str, Any]], key: str) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--map", type=Path, default=ROOT / "maps" / "monaco.db")
-    parser.add_argument("--drives", type=int, default=10)
-    parser.add_argument("--duration", type=float, default=600.0)
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
+    args = drives_parser(__doc__).parse_args()
     jobs = [(str(args.map), seed, args.duration, tunnels)
             for tunnels in (False, True) for seed in range(1, args.drives + 1)]
     rows: list[dict[str, Any]] = []

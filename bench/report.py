@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import platform
 import statistics
@@ -11,6 +12,17 @@ from pathlib import Path
 from typing import Any
 
 RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def drives_parser(doc: str) -> argparse.ArgumentParser:
+    """The options of the simulated-drive evaluations."""
+    parser = argparse.ArgumentParser(description=doc.split("\n")[0])
+    parser.add_argument("--map", type=Path, default=RESULTS.parent.parent / "maps" / "monaco.db",
+                        help="road-graph database (default maps/monaco.db)")
+    parser.add_argument("--drives", type=int, default=10, help="drives, seeds 1..N")
+    parser.add_argument("--duration", type=float, default=600.0, help="seconds per drive")
+    parser.add_argument("--workers", type=int, default=2, help="processes")
+    return parser
 
 
 def median_us(seconds: Sequence[float]) -> float:
