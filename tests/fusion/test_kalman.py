@@ -47,3 +47,11 @@ def test_covariance_stays_symmetric_psd(a: float, b: float, r: float, z0: float,
     F = np.array([[1.0, 0.1], [0.0, 1.0]])
     P3 = kalman.predict(P2, F, np.full(2, z1 ** 2 * 1e-3))
     assert np.allclose(P3, P3.T) and np.linalg.eigvalsh(P3).min() > -1e-9
+
+
+@given(st.lists(st.floats(-3, 3), min_size=9, max_size=9))
+def test_inverse_matches_numpy(values: list[float]) -> None:
+    A = np.array(values).reshape(3, 3)
+    S = A @ A.T + np.eye(3)  # symmetric positive definite
+    for n in (1, 2, 3):
+        assert np.allclose(kalman.inverse(S[:n, :n]) @ S[:n, :n], np.eye(n), atol=1e-9)
