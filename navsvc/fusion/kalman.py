@@ -53,10 +53,14 @@ def _innovation(z: Array, h: Array, H: Array, P: Array,
     return y, S, float(y @ inverse(S) @ y)
 
 
+def _f64(a: Array) -> Array:
+    """The array as float64 for the compiled kernels, copied only when it is not already."""
+    return np.asarray(a, dtype=np.float64)
+
+
 def innovation(z: Array, h: Array, H: Array, P: Array, R: Array) -> tuple[Array, Array, float]:
     """Innovation ``y = z - h(x)``, its covariance ``S`` and the NIS ``yᵀ S⁻¹ y``."""
-    return _innovation(z.astype(np.float64), h.astype(np.float64), H.astype(np.float64),
-                       P, R.astype(np.float64))
+    return _innovation(_f64(z), _f64(h), _f64(H), P, _f64(R))
 
 
 @jit
@@ -75,7 +79,7 @@ def _gain(P: Array, H: Array, S: Array) -> Array:  # pragma: no cover - compiled
 
 def update(x: Array, P: Array, y: Array, S: Array, H: Array, R: Array) -> tuple[Array, Array]:
     """Measurement update from an innovation (Joseph form)."""
-    H, R = H.astype(np.float64), R.astype(np.float64)
+    H, R = _f64(H), _f64(R)
     return _joseph(x, P, y, H, R, _gain(P, H, S))
 
 
@@ -87,5 +91,4 @@ def gate(nis: float, dof: int, scale: float = 1.0) -> bool:
 def fixed_gain_update(x: Array, P: Array, y: Array, H: Array, R: Array,
                       K: Array) -> tuple[Array, Array]:
     """Update with a prescribed gain (the thesis's weighted sums), Joseph form for ``P``."""
-    return _joseph(x, P, y.astype(np.float64), H.astype(np.float64), R.astype(np.float64),
-                   K.astype(np.float64))
+    return _joseph(x, P, _f64(y), _f64(H), _f64(R), _f64(K))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import asdict, dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -94,21 +95,23 @@ class _Truth:
                                  np.interp(t, self.t, self.xy[:, 1])]),
                 np.interp(t, self.t, self.heading_rad))
 
+    @cached_property
+    def changes(self) -> np.ndarray:
+        """Indices of the first record on each new road."""
+        return np.array([i for i in range(1, len(self.road)) if self.road[i] != self.road[i - 1]],
+                        dtype=int)
+
     def roads_at(self, t: float) -> set[frozenset[int]]:
-        """The true road at ``t``, and its neighbour when within NODE_TOLERANCE_M of the
-        intersection between them (truth and map disagree by a few metres there)."""
+        """The true road at ``t``, and the roads on both sides of any change of road within
+        NODE_TOLERANCE_M (truth and map disagree by a few metres at intersections)."""
         i = int(np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1))
-        roads = {self.road[i]}
         s = float(np.interp(t, self.t, self.s_m))
-        for j in (i, i + 1):  # the change of road before and after i
-            k = j
-            step = -1 if j == i else 1
-            while 0 < k < len(self.road) and self.road[k] == self.road[i]:
-                k += step
-            if 0 < k < len(self.road) and self.road[k] != self.road[i]:
-                change = k if step == 1 else k + 1
-                if abs(self.s_m[change] - s) <= NODE_TOLERANCE_M:
-                    roads.add(self.road[k])
+        change_s = self.s_m[self.changes]
+        lo = np.searchsorted(change_s, s - NODE_TOLERANCE_M)
+        hi = np.searchsorted(change_s, s + NODE_TOLERANCE_M, side="right")
+        roads = {self.road[i]}
+        for k in self.changes[lo:hi]:
+            roads |= {self.road[k - 1], self.road[k]}
         return roads
 
 
@@ -157,7 +160,7 @@ def _outages(gps_t: np.ndarray, truth: _Truth, est_t: np.ndarray,
 def _intersections(truth: _Truth, est_t: np.ndarray,
                    est_road: list[frozenset[int] | None]) -> tuple[int, int]:
     """Each time the truth enters a new road: did the run mostly match that road there?"""
-    changes = [i for i in range(1, len(truth.t)) if truth.road[i] != truth.road[i - 1]]
+    changes = truth.changes.tolist()
     correct = total = 0
     for k, i in enumerate(changes):
         end = truth.t[changes[k + 1]] if k + 1 < len(changes) else truth.t[-1]
