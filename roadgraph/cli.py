@@ -71,12 +71,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     imp = sub.add_parser(
         "import", help="import OSM data into a road-graph database",
-        description="Read a local OSM file (.osm, .osm.gz, .osm.bz2, .osm.pbf) offline, or "
+        description="Read a local OSM file (.osm, .osm.gz, .osm.bz2, .osm.pbf) or an osmnx "
+                    "GraphML graph (.graphml, taken as it is) offline, or "
                     "download a --place or --bbox through osmnx (needs a network), keep the "
                     "drivable roads, simplify to intersection nodes, consolidate complex "
                     "junctions, and write the database atomically (no file on failure).")
     imp.add_argument("source", nargs="?", type=Path,
-                     help="local OSM file; omit when using --place or --bbox")
+                     help="local OSM or .graphml file; omit when using --place or --bbox")
     where = imp.add_mutually_exclusive_group()
     where.add_argument("--place", help='place name to download, e.g. "Monaco" (online)')
     where.add_argument("--bbox", type=_bbox_arg, metavar="W,S,E,N",

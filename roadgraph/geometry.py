@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass
 from functools import cached_property
 
+import numba
 import numpy as np
 import numpy.typing as npt
 from pyproj import CRS, Transformer
@@ -118,37 +119,47 @@ def project_onto_polyline(coords: FloatArray, x_m: float, y_m: float) -> Polylin
 
     Zero-length segments are allowed; the bearing then comes from the nearest non-degenerate one.
     """
-    start = coords[:-1]
-    delta = coords[1:] - start
-    seg_len_sq = np.einsum("ij,ij->i", delta, delta)
-    rel = np.array([x_m, y_m]) - start
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(seg_len_sq > 0.0, np.einsum("ij,ij->i", rel, delta) / seg_len_sq, 0.0)
-    t = np.clip(t, 0.0, 1.0)
-    closest = start + delta * t[:, None]
-    dist_sq = np.sum((closest - np.array([x_m, y_m])) ** 2, axis=1)
-    i = int(np.argmin(dist_sq))
-    seg_len = np.sqrt(seg_len_sq)
-    offset = float(np.sum(seg_len[:i]) + t[i] * seg_len[i])
-    j = _nearest_nondegenerate(seg_len_sq, i)
-    dx, dy = delta[j]
-    return PolylineProjection(
-        offset_m=offset,
-        distance_m=float(math.sqrt(dist_sq[i])),
-        x_m=float(closest[i, 0]),
-        y_m=float(closest[i, 1]),
-        bearing_rad=normalize_bearing_rad(math.atan2(dx, dy)),
-        segment_index=i,
-    )
+    offset, dist, px, py, bearing, i = _project(coords, x_m, y_m)
+    return PolylineProjection(offset_m=offset, distance_m=dist, x_m=px, y_m=py,
+                              bearing_rad=normalize_bearing_rad(bearing), segment_index=i)
 
 
-def _nearest_nondegenerate(seg_len_sq: FloatArray, i: int) -> int:
-    if seg_len_sq[i] > 0.0:
-        return i
-    nonzero = np.flatnonzero(seg_len_sq > 0.0)
-    if nonzero.size == 0:
-        return i
-    return int(nonzero[np.argmin(np.abs(nonzero - i))])
+@numba.njit(cache=True, nogil=True)
+def _project(coords: FloatArray, x_m: float, y_m: float
+             ) -> tuple[float, float, float, float, float, int]:
+    """(offset, distance, x, y, bearing, segment) of the closest point; compiled, because the
+    matchers call this for every candidate edge and numpy's per-call overhead dominated."""
+    best_i, best_d2, best_t, best_off, run = 0, np.inf, 0.0, 0.0, 0.0
+    for i in range(coords.shape[0] - 1):
+        ax, ay = coords[i, 0], coords[i, 1]
+        dx, dy = coords[i + 1, 0] - ax, coords[i + 1, 1] - ay
+        len_sq = dx * dx + dy * dy
+        t = 0.0
+        if len_sq > 0.0:
+            t = min(max(((x_m - ax) * dx + (y_m - ay) * dy) / len_sq, 0.0), 1.0)
+        cx, cy = ax + t * dx - x_m, ay + t * dy - y_m
+        d2 = cx * cx + cy * cy
+        seg_len = math.sqrt(len_sq)
+        if d2 < best_d2:
+            best_i, best_d2, best_t, best_off = i, d2, t, run + t * seg_len
+        run += seg_len
+    j = _nearest_nondegenerate(coords, best_i)
+    dx, dy = coords[j + 1, 0] - coords[j, 0], coords[j + 1, 1] - coords[j, 1]
+    px = coords[best_i, 0] + best_t * (coords[best_i + 1, 0] - coords[best_i, 0])
+    py = coords[best_i, 1] + best_t * (coords[best_i + 1, 1] - coords[best_i, 1])
+    return best_off, math.sqrt(best_d2), px, py, math.atan2(dx, dy), best_i
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_nondegenerate(coords: FloatArray, i: int) -> int:
+    """The segment nearest to ``i`` (itself first) that has a length, else ``i``."""
+    n = coords.shape[0] - 1
+    for step in range(n):
+        for j in (i - step, i + step):
+            if 0 <= j < n and (coords[j + 1, 0] != coords[j, 0] or
+                               coords[j + 1, 1] != coords[j, 1]):
+                return j
+    return i
 
 
 def polyline_length_m(coords: FloatArray) -> float:
@@ -163,7 +174,7 @@ def point_at_offset(coords: FloatArray, offset_m: float) -> tuple[float, float, 
     cum = np.concatenate([[0.0], np.cumsum(seg_len)])
     offset = min(max(offset_m, 0.0), float(cum[-1]))
     i = int(np.clip(np.searchsorted(cum, offset, side="right") - 1, 0, len(seg) - 1))
-    i = _nearest_nondegenerate(seg_len**2, i)
+    i = _nearest_nondegenerate(coords, i)
     frac = 0.0 if seg_len[i] == 0.0 else (offset - cum[i]) / seg_len[i]
     x, y = coords[i] + seg[i] * min(max(frac, 0.0), 1.0)
     return float(x), float(y), normalize_bearing_rad(math.atan2(seg[i, 0], seg[i, 1]))

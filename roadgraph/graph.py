@@ -9,6 +9,8 @@ Seed: Mayhew 1999, section 5.7 (the intersection mesh and the perpendicular-dist
 
 from __future__ import annotations
 
+import heapq
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -68,6 +70,7 @@ class RoadGraph:
         self._keys = list(self._index)
         self._grid = SegmentGrid([e.coords for e in self._edges])
         self.graph = self._to_networkx()
+        self._successors = self._successor_lists()
 
     @classmethod
     def open(cls, path: Path | str) -> RoadGraph:
@@ -87,6 +90,15 @@ class RoadGraph:
         for e in self._edges:
             graph.add_edge(e.u, e.v, key=e.key, length=e.length_m)
         return graph
+
+    def _successor_lists(self) -> dict[int, list[tuple[int, float]]]:
+        shortest: dict[tuple[int, int], float] = {}
+        for e in self._edges:
+            shortest[(e.u, e.v)] = min(e.length_m, shortest.get((e.u, e.v), math.inf))
+        out: dict[int, list[tuple[int, float]]] = {n: [] for n in self._nodes}
+        for (u, v), length in shortest.items():
+            out[u].append((v, length))
+        return out
 
     # --- records -------------------------------------------------------------------------
     @property
@@ -150,6 +162,26 @@ class RoadGraph:
         """
         nodes = nx.shortest_path(self.graph, source, target, weight="length")
         return [self._shortest_parallel(u, v) for u, v in zip(nodes[:-1], nodes[1:])]
+
+    def distances_from(self, source: int, cutoff_m: float) -> dict[int, float]:
+        """Driving distance from ``source`` to every node within ``cutoff_m`` (Dijkstra).
+
+        A plain heap search over precomputed successor lists: the matchers run one per
+        candidate, and networkx's general version cost three times as much.
+        """
+        done: dict[int, float] = {}
+        heap = [(0.0, source)]
+        successors = self._successors
+        while heap:
+            d, u = heapq.heappop(heap)
+            if u in done:
+                continue
+            done[u] = d
+            for v, length in successors[u]:
+                dv = d + length
+                if dv <= cutoff_m and v not in done:
+                    heapq.heappush(heap, (dv, v))
+        return done
 
     def _shortest_parallel(self, u: int, v: int) -> EdgeKey:
         key = min(self.graph[u][v], key=lambda k: self.graph[u][v][k]["length"])

@@ -14,7 +14,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from roadgraph.build import DEFAULT_CONSOLIDATE_M, MapInfo, build_network
-from roadgraph.osm import download_graph, file_sha256, read_osm_file
+from roadgraph.osm import download_graph, file_sha256, read_graphml, read_osm_file
 from roadgraph.store import check_writable, write_network
 
 log = logging.getLogger(__name__)
@@ -38,7 +38,10 @@ def import_map(
                  disable=None if progress else True)
     with steps:
         steps.set_postfix_str("reading OSM")
-        if source is not None:
+        if source is not None and source.suffix == ".graphml":
+            raw = read_graphml(source)
+            name, sha = source.name, file_sha256(source)
+        elif source is not None:
             raw = read_osm_file(source, network)
             name, sha = source.name, file_sha256(source)
         else:

@@ -2,8 +2,9 @@
 
 Local files (``.osm``, ``.osm.gz``, ``.osm.bz2``, ``.osm.pbf``) are read offline with pyosmium,
 keeping only the ways of the requested network (``osmnx.graph_from_xml`` would otherwise keep
-buildings and land use too), then handed to osmnx. ``--place`` and ``--bbox`` go through osmnx's
-Overpass download and need a network.
+buildings and land use too), then handed to osmnx. A ``.graphml`` file is a graph osmnx already
+built and saved (``osmnx.save_graphml``); it is taken as it is, without filtering.
+``--place`` and ``--bbox`` go through osmnx's Overpass download and need a network.
 
 The result is osmnx's unsimplified graph in WGS84; :mod:`roadgraph.build` turns it into the
 intersection graph.
@@ -25,7 +26,6 @@ from roadgraph.errors import MapSourceError, NoDrivableRoadError
 
 log = logging.getLogger(__name__)
 
-OSM_SUFFIXES = (".osm", ".osm.gz", ".osm.bz2", ".osm.pbf", ".pbf", ".xml")
 
 # Highway classes a car drives on (osmnx's "drive" network; "drive_service" adds service roads).
 _DRIVE_HIGHWAYS = frozenset(
@@ -69,10 +69,7 @@ def file_sha256(path: Path) -> str:
 def read_osm_file(path: Path, network: str = "drive") -> nx.MultiDiGraph:
     """Read a local OSM file into osmnx's unsimplified WGS84 graph of the drivable roads."""
     _check_network(network)
-    if not path.exists():
-        raise MapSourceError(f"{path}: no such file")
-    if not path.is_file():
-        raise MapSourceError(f"{path}: not a regular file")
+    _check_file(path)
     with tempfile.TemporaryDirectory(prefix="roadgraph-") as tmp:
         filtered = Path(tmp) / "roads.osm"
         kept = _filter_roads(path, filtered, network)
@@ -83,6 +80,26 @@ def read_osm_file(path: Path, network: str = "drive") -> nx.MultiDiGraph:
             return ox.graph_from_xml(filtered, simplify=False, retain_all=True)
         except Exception as exc:  # osmnx raises bare ValueError/KeyError on odd content
             raise MapSourceError(f"{path}: osmnx could not build a graph: {exc}") from exc
+
+
+def read_graphml(path: Path) -> nx.MultiDiGraph:
+    """Read a graph saved by ``osmnx.save_graphml`` (WGS84; simplified or not)."""
+    _check_file(path)
+    try:
+        graph: nx.MultiDiGraph = ox.load_graphml(path)
+    except Exception as exc:  # XML errors, missing attributes, bad literals
+        raise MapSourceError(f"{path}: not an osmnx GraphML graph: {exc}") from exc
+    if str(graph.graph.get("crs", "")).lower() not in ("epsg:4326", "wgs84"):
+        raise MapSourceError(f"{path}: GraphML graph must be in epsg:4326 (WGS84), "
+                             f"not {graph.graph.get('crs')!r}")
+    return graph
+
+
+def _check_file(path: Path) -> None:
+    if not path.exists():
+        raise MapSourceError(f"{path}: no such file")
+    if not path.is_file():
+        raise MapSourceError(f"{path}: not a regular file")
 
 
 def _filter_roads(src: Path, dst: Path, network: str) -> int:

@@ -7,15 +7,14 @@ exponential in ``|route distance - straight distance|`` between consecutive poin
 than ``2 sigma`` to the last kept one are skipped (as GraphHopper does); where no candidate
 of one point can reach any of the next, the trace is split into a new segment.
 
-The route between matched points is rebuilt by shortest path. Pure: no I/O.
+The route between matched points is rebuilt by shortest path; a skipped point is matched to
+the nearest position on the route between its kept neighbours. Pure: no I/O.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-
-import networkx as nx
 
 from navsvc.errors import TraceError
 from roadgraph import EdgeKey, EdgeProjection, RoadGraph
@@ -40,7 +39,7 @@ class TracePoint:
 
 @dataclass(frozen=True)
 class PointMatch:
-    """Where one trace point was matched (None: skipped as too close, or unmatched)."""
+    """Where one trace point was matched (None: no road near it, or outside every segment)."""
 
     index: int
     projection: EdgeProjection | None
@@ -85,8 +84,6 @@ class HmmMatcher:
     def __init__(self, graph: RoadGraph, config: HmmConfig = HmmConfig()) -> None:
         self.graph = graph
         self.config = config
-        self._lengths = {(u, v): min(d["length"] for d in graph.graph[u][v].values())
-                         for u, v in graph.graph.edges()}
 
     def candidates(self, p: TracePoint) -> list[EdgeProjection]:
         c = self.config
@@ -94,16 +91,20 @@ class HmmMatcher:
         return [self.graph.project(n.edge, p.x_m, p.y_m) for n in near[:c.max_candidates]]
 
     def route_distance(self, a: EdgeProjection, b: EdgeProjection, limit_m: float,
-                       cache: dict[int, dict[int, float]]) -> float:
-        """Driving distance from projection ``a`` to ``b`` (inf beyond ``limit_m``)."""
+                       cache: dict[int, tuple[float, dict[int, float]]]) -> float:
+        """Driving distance from projection ``a`` to ``b`` (inf beyond ``limit_m``).
+
+        ``cache`` holds one search per source node for the whole trace, with the cutoff it was
+        run to; a later step that needs a longer reach searches again.
+        """
         if a.edge == b.edge and b.offset_m >= a.offset_m - 1e-6:
             return b.offset_m - a.offset_m
         source = a.edge.v
-        if source not in cache:
-            cache[source] = nx.single_source_dijkstra_path_length(
-                self.graph.graph, source, cutoff=limit_m, weight="length")
-        between = cache[source].get(b.edge.u)
-        if between is None:
+        found = cache.get(source)
+        if found is None or found[0] < limit_m:
+            found = cache[source] = (limit_m, self.graph.distances_from(source, limit_m))
+        between = found[1].get(b.edge.u)
+        if between is None or between > limit_m:
             return math.inf
         return a.remaining_m + between + b.offset_m
 
@@ -116,9 +117,9 @@ class HmmMatcher:
         kept = _keep(points, 2.0 * c.sigma_m)
         matches: dict[int, tuple[EdgeProjection, int]] = {}
         segments: list[RouteSegment] = []
-        chain: list[tuple[int, EdgeProjection]] = []
         layer: list[tuple[EdgeProjection, float, int]] = []  # candidate, log prob, back index
         history: list[tuple[int, list[tuple[EdgeProjection, float, int]]]] = []
+        cache: dict[int, tuple[float, dict[int, float]]] = {}
         for i in kept:
             cands = self.candidates(points[i])
             if not cands:
@@ -129,34 +130,28 @@ class HmmMatcher:
                 history = [(i, layer)]
                 continue
             new_layer = self._transition(layer, points[history[-1][0]], points[i], cands,
-                                         emission)
+                                         emission, cache)
             if all(s == -math.inf for _, s, _ in new_layer):  # a gap it cannot bridge: split
-                chain = self._backtrack(history)
-                segments.append(self._route(chain))
-                for j, proj in chain:
-                    matches[j] = (proj, len(segments) - 1)
+                self._close_segment(points, history, segments, matches)
                 layer = [(p, e, -1) for p, e in zip(cands, emission)]
                 history = [(i, layer)]
                 continue
             layer = new_layer
             history.append((i, layer))
         if history:
-            chain = self._backtrack(history)
-            segments.append(self._route(chain))
-            for j, proj in chain:
-                matches[j] = (proj, len(segments) - 1)
+            self._close_segment(points, history, segments, matches)
         return MatchResult(segments, [
             PointMatch(i, matches[i][0] if i in matches else None,
                        matches[i][1] if i in matches else None) for i in range(len(points))])
 
     def _transition(self, layer: list[tuple[EdgeProjection, float, int]], prev: TracePoint,
-                    point: TracePoint, cands: list[EdgeProjection],
-                    emission: list[float]) -> list[tuple[EdgeProjection, float, int]]:
+                    point: TracePoint, cands: list[EdgeProjection], emission: list[float],
+                    cache: dict[int, tuple[float, dict[int, float]]]
+                    ) -> list[tuple[EdgeProjection, float, int]]:
         """One Viterbi step: each candidate's best predecessor and score."""
         c = self.config
         straight = _distance(prev, point)
         limit = c.max_route_factor * straight + 500.0
-        cache: dict[int, dict[int, float]] = {}
         new_layer = []
         for p, e in zip(cands, emission):
             best, back = -math.inf, -1
@@ -184,14 +179,38 @@ class HmmMatcher:
             k = back
         return chain[::-1]
 
-    def _route(self, chain: list[tuple[int, EdgeProjection]]) -> RouteSegment:
-        """The edges driven through the matched positions, in order."""
+    def _close_segment(self, points: list[TracePoint],
+                       history: list[tuple[int, list[tuple[EdgeProjection, float, int]]]],
+                       segments: list[RouteSegment],
+                       matches: dict[int, tuple[EdgeProjection, int]]) -> None:
+        """Decode the segment ending here, rebuild its route and match its points."""
+        chain = self._backtrack(history)
+        seg, spans = self._route(chain)
+        segments.append(seg)
+        number = len(segments) - 1
+        for k, (i, proj) in enumerate(chain):
+            matches[i] = (proj, number)
+            if k + 1 == len(chain):
+                break
+            between = seg.edges[spans[k][0]:spans[k][1] + 1]
+            for j in range(i + 1, chain[k + 1][0]):  # skipped points: onto the route driven
+                p = points[j]
+                matches[j] = (min((self.graph.project(e, p.x_m, p.y_m) for e in between),
+                                  key=lambda q: q.distance_m), number)
+
+    def _route(self, chain: list[tuple[int, EdgeProjection]]
+               ) -> tuple[RouteSegment, list[tuple[int, int]]]:
+        """The edges driven through the matched positions, in order, and for each step
+        between two of them the first and last index into those edges."""
         first = chain[0][1]
         seg = RouteSegment(edges=[first.edge], start_offset_m=first.offset_m,
                            end_offset_m=first.offset_m)
+        spans = []
         for (_, a), (_, b) in zip(chain[:-1], chain[1:]):
+            start = len(seg.edges) - 1
             if a.edge == b.edge and b.offset_m >= a.offset_m - 1e-6:
                 seg.length_m += b.offset_m - a.offset_m
+                spans.append((start, start))
                 continue
             seg.length_m += a.remaining_m + b.offset_m
             if a.edge.v != b.edge.u:
@@ -199,5 +218,6 @@ class HmmMatcher:
                 seg.edges += path
                 seg.length_m += sum(self.graph.edge(e).length_m for e in path)
             seg.edges.append(b.edge)
+            spans.append((start, len(seg.edges) - 1))
         seg.end_offset_m = chain[-1][1].offset_m
-        return seg
+        return seg, spans

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -42,9 +41,10 @@ def _segment_json(graph: RoadGraph, seg: RouteSegment) -> dict[str, Any]:
     }
 
 
-def trace_length_m(graph: RoadGraph, fixes: list[TraceFix]) -> float:
-    xy = [graph.frame.to_local(f.lon_deg, f.lat_deg) for f in fixes]
-    return float(sum(math.dist(a, b) for a, b in zip(xy[:-1], xy[1:])))
+def _local(graph: RoadGraph, fixes: list[TraceFix]) -> np.ndarray:
+    """The fixes in the map's metres, as an ``(n, 2)`` array (one projection call)."""
+    lonlat = np.array([(f.lon_deg, f.lat_deg) for f in fixes], dtype=np.float64).reshape(-1, 2)
+    return graph.frame.coords_to_local(lonlat)
 
 
 DEFAULT_CONFIG = HmmConfig()
@@ -54,17 +54,21 @@ def match_trace(graph: RoadGraph, fixes: list[TraceFix],
                 config: HmmConfig = DEFAULT_CONFIG) -> dict[str, Any]:
     """Match a trace (sorted by time and deduplicated first) and describe the route."""
     fixes = clean(fixes)
-    points = [TracePoint(f.t, *graph.frame.to_local(f.lon_deg, f.lat_deg)) for f in fixes]
+    xy = _local(graph, fixes)
+    points = [TracePoint(f.t, x, y) for f, (x, y) in zip(fixes, xy.tolist())]
     result: MatchResult = HmmMatcher(graph, config).match(points)
     if not result.segments:
         radius = config.search_radius_sigmas * config.sigma_m
         raise TraceError(f"no point of the trace is within {radius:g} m of a road of the map "
                          f"{graph.map_id!r} (is it the right map?)")
+    on_road = [m.projection for m in result.points if m.projection is not None]
+    matched_lonlat = iter(graph.frame.coords_to_wgs84(
+        np.array([(p.x_m, p.y_m) for p in on_road], dtype=np.float64).reshape(-1, 2)).tolist())
     per_point = []
     for f, m in zip(fixes, result.points):
         matched = None
         if m.projection is not None:
-            lon, lat = graph.frame.to_wgs84(m.projection.x_m, m.projection.y_m)
+            lon, lat = next(matched_lonlat)
             e = m.projection.edge
             matched = {"lat": round(lat, 7), "lon": round(lon, 7),
                        "edge": {"u": e.u, "v": e.v, "key": e.key},
@@ -73,7 +77,8 @@ def match_trace(graph: RoadGraph, fixes: list[TraceFix],
         per_point.append({"index": m.index, "t": f.t, "lat": f.lat_deg, "lon": f.lon_deg,
                           "matched": matched})
     segments = [_segment_json(graph, s) for s in result.segments]
+    length = np.hypot(*np.diff(xy, axis=0).T).sum() if len(xy) > 1 else 0.0
     return {"map": graph.map_id, "points_in": len(fixes),
-            "trace_length_m": round(trace_length_m(graph, fixes), 2),
+            "trace_length_m": round(float(length), 2),
             "length_m": round(sum(s["length_m"] for s in segments), 2),
             "segments": segments, "points": per_point}
