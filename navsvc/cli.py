@@ -1,4 +1,5 @@
-"""`navsvc`: simulate drives, replay them through fusion and matching, evaluate the result.
+"""`navsvc`: simulate drives, replay them through fusion and matching, evaluate the result,
+match whole traces, and serve the HTTP + WebSocket API.
 
 Errors print one line naming the file (and line) and the problem, and exit with status 1;
 usage errors exit with status 2.
@@ -10,6 +11,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 from collections import Counter
 from collections.abc import Sequence
@@ -19,11 +21,11 @@ from typing import Any
 from tqdm import tqdm
 
 from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
-from navsvc.fusion.engine import FusionConfig, GpsMode
+from navsvc.fusion.engine import GpsMode
 from navsvc.fusion.motion import SensorConfig
 from navsvc.matching.hmm import HmmConfig
 from navsvc.matching.route import match_trace
-from navsvc.session import SessionConfig, VehicleSession
+from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import Evaluation, evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.wire.jsonl import iter_lines, read_records, write_records
@@ -138,6 +140,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"GPS error in metres (default {HmmConfig.sigma_m:g})")
     mt.add_argument("--json", action="store_true",
                     help="print the whole route JSON even with -o (default: a summary)")
+
+    sv = sub.add_parser("serve", help="run the HTTP + WebSocket service",
+                        description="Serve the API of interfaces.md (prefix /v1; OpenAPI at "
+                        "/openapi.json, docs at /docs) on one road-graph database. Sessions "
+                        "open when the server stopped are restored from the trip log. Limits "
+                        "and API keys come from NAVSVC_* environment variables (README).")
+    sv.add_argument("--map", type=Path, metavar="DB",
+                    help="road-graph database (default: $NAVSVC_MAP)")
+    sv.add_argument("--host", default=os.environ.get("NAVSVC_HOST", "127.0.0.1"),
+                    help="address to listen on (default: $NAVSVC_HOST or 127.0.0.1)")
+    sv.add_argument("--port", type=int, default=int(os.environ.get("NAVSVC_PORT", "8000")),
+                    help="TCP port (default: $NAVSVC_PORT or 8000)")
+    sv.add_argument("--triplog", type=Path, metavar="FILE",
+                    help="trip log SQLite file (default: $NAVSVC_TRIPLOG, else DB's stem + "
+                    ".trips.db beside DB)")
     return parser
 
 
@@ -170,9 +187,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     graph = RoadGraph.open(args.map)
     try:
-        config = SessionConfig(fusion=FusionConfig(sensors=SensorConfig(args.sensors),
-                                                   gps_mode=GpsMode(args.fusion)),
-                               map_feedback=args.map_feedback)
+        config = config_from_options({"sensors": args.sensors, "fusion": args.fusion,
+                                      "map_feedback": args.map_feedback})
     except ConfigError as exc:
         print(f"navsvc: error: {exc}", file=sys.stderr)
         return 2
@@ -268,5 +284,18 @@ def _cmd_match(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn  # only the service needs it
+
+    from navsvc.api import Settings, create_app
+
+    logging.getLogger("navsvc").setLevel(logging.INFO)  # a service says what it does
+    settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog)
+    app = create_app(settings)
+    uvicorn.run(app, host=args.host, port=args.port, ws_ping_interval=20.0,
+                ws_ping_timeout=20.0, log_level="debug" if args.verbose else "info")
+    return 0
+
+
 _COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate,
-             "match": _cmd_match}
+             "match": _cmd_match, "serve": _cmd_serve}

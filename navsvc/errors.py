@@ -5,7 +5,9 @@
     NavsvcError                anything navsvc refuses to do
     ├── PacketError            one packet cannot be used (carries a RejectReason)
     ├── ConfigError            impossible parameters (refused in constructors)
-    └── TraceError             a trace file or request that cannot be matched
+    ├── TraceError             a trace file or request that cannot be matched
+    ├── SessionNotFound        no such session, or not visible with this API key
+    └── LimitExceeded          a configured limit (sessions per key, ...) would be passed
 
 A rejected packet never changes any state; the caller reports ``Rejection(index, reason,
 detail)`` and carries on with the next packet.
@@ -68,3 +70,11 @@ class ConfigError(NavsvcError):
 
 class TraceError(NavsvcError):
     """A trace that cannot be read or matched."""
+
+
+class SessionNotFound(NavsvcError):
+    """No session with this id is visible to the caller."""
+
+
+class LimitExceeded(NavsvcError):
+    """A request would pass a configured limit."""

@@ -1,26 +1,41 @@
-"""One vehicle's navigation: wire records in, matched positions out.
+"""One vehicle's navigation: wire records in, matched positions out; and the live sessions.
 
 The same pipeline serves a live session (REST, WebSocket) and an offline replay
 (``navsvc run``): parse each record, feed the :class:`FusionEngine`, and place each estimate on
 the road graph. A record that cannot be used is reported as a :class:`Rejection` and changes
 nothing.
+
+:class:`SessionStore` holds the service's sessions: ids, owners (API keys), idle expiry, and
+the trip log that makes every accepted packet durable before it is acknowledged and lets a
+restarted server rebuild its open sessions by replaying them.
 """
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import math
-from collections.abc import Iterable
+import secrets
+import sqlite3
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from navsvc.errors import PacketError, Rejection
-from navsvc.fusion.engine import FusionConfig, FusionEngine
-from navsvc.fusion.motion import road_constraint
+from navsvc.errors import LimitExceeded, PacketError, Rejection, RejectReason, SessionNotFound
+from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
+from navsvc.fusion.motion import SensorConfig, road_constraint
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
-from navsvc.types import FusedEstimate, MatchedPosition, MatchState
+from navsvc.triplog import LoggedSession, TripLog
+from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState
 from navsvc.wire.packets import parse
 from roadgraph import EdgeKey, LocalFrame, RoadGraph
 from roadgraph.geometry import wrap_angle_rad
+
+log = logging.getLogger(__name__)
+
+
+MAP_MARGIN_DEG = 0.5  # GPS fixes farther than this outside the map's bbox are refused
 
 
 @dataclass(frozen=True)
@@ -70,7 +85,10 @@ class VehicleSession:
             if isinstance(record, dict) and record.get("kind") == "truth":
                 continue  # simulator ground truth travels in the same files
             try:
-                estimates = self.engine.add(parse(record))
+                packet = parse(record)
+                if isinstance(packet, GpsFix):
+                    self._check_on_map(packet)
+                estimates = self.engine.add(packet)
             except PacketError as exc:
                 result.rejections.append(Rejection(index, exc.reason, exc.detail))
                 continue
@@ -81,10 +99,18 @@ class VehicleSession:
                 self._step_matcher()
         return result
 
-    def position(self) -> MatchedPosition | None:
-        """The latest position (on request, between GPS epochs)."""
-        estimate = self.engine.estimate()
-        return None if estimate is None else self._place(estimate)
+    def _check_on_map(self, fix: GpsFix) -> None:
+        """Refuse a fix far outside the map: the vehicle cannot be matched there, and one
+        such fix would throw the filter thousands of kilometres off."""
+        if self.graph is None:
+            return
+        west, south, east, north = self.graph.info.bbox_wgs84
+        m = MAP_MARGIN_DEG
+        if not (south - m <= fix.lat_deg <= north + m and west - m <= fix.lon_deg <= east + m):
+            raise PacketError(RejectReason.OUT_OF_RANGE,
+                              f"fix at lat={fix.lat_deg} lon={fix.lon_deg} is outside the map "
+                              f"{self.graph.map_id!r} (bbox {west:.4f},{south:.4f},"
+                              f"{east:.4f},{north:.4f} plus {m} degrees)")
 
     def _step_matcher(self) -> None:
         """Between outputs, step the matcher every ``match_interval_s`` so that it sees each
@@ -130,3 +156,144 @@ class VehicleSession:
                                              c.feedback_sigma_across_m,
                                              c.feedback_sigma_heading_rad))
         self._last_feedback_t = e.t
+
+
+def config_from_options(options: dict[str, Any]) -> SessionConfig:
+    """A session's configuration from the options it was created with (API and trip log).
+
+    Keys: ``sensors``, ``fusion`` (GPS mode), ``map_feedback``, and the optional vehicle
+    constants ``ticks_per_m``, ``wheelbase_m``, ``gps_uere_m``. Raises ConfigError.
+    """
+    defaults = FusionConfig()
+    fusion = FusionConfig(
+        sensors=SensorConfig(options.get("sensors", "gyro_odometer")),
+        gps_mode=GpsMode(options.get("fusion", "ekf")),
+        ticks_per_m=float(options.get("ticks_per_m", defaults.ticks_per_m)),
+        wheelbase_m=float(options.get("wheelbase_m", defaults.wheelbase_m)),
+        gps_uere_m=float(options.get("gps_uere_m", defaults.gps_uere_m)))
+    return SessionConfig(fusion=fusion, map_feedback=bool(options.get("map_feedback", False)))
+
+
+def owner_of(api_key: str | None) -> str:
+    """What the store keeps of an API key: its SHA-256 ('' for the open service)."""
+    return hashlib.sha256(api_key.encode()).hexdigest() if api_key else ""
+
+
+@dataclass
+class LiveSession:
+    """A session of the service: the vehicle's pipeline and what the store needs around it."""
+
+    id: str
+    owner: str
+    vehicle_id: str
+    options: dict[str, Any]
+    created_unix: float
+    vehicle: VehicleSession
+    packets: int = 0  # accepted so far (the next trip-log sequence number)
+    rejected: int = 0
+    last_seen: float = 0.0  # store clock
+
+
+class SessionStore:
+    """The live sessions, backed by a trip log."""
+
+    def __init__(self, graph: RoadGraph, triplog: TripLog, *, idle_timeout_s: float = 3600.0,
+                 max_sessions_per_owner: int = 10_000,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.graph = graph
+        self.triplog = triplog
+        self.idle_timeout_s = idle_timeout_s
+        self.max_sessions_per_owner = max_sessions_per_owner
+        self._clock = clock
+        self._sessions: dict[str, LiveSession] = {}
+
+    def __len__(self) -> int:
+        return len(self._sessions)
+
+    def create(self, owner: str, vehicle_id: str, options: dict[str, Any]) -> LiveSession:
+        """Start a session (options as in :func:`config_from_options`)."""
+        config = config_from_options(options)
+        owned = sum(1 for s in self._sessions.values() if s.owner == owner)
+        if owned >= self.max_sessions_per_owner:
+            raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
+                                f"{self.max_sessions_per_owner}")
+        session = LiveSession(id=secrets.token_hex(8), owner=owner, vehicle_id=vehicle_id,
+                              options=options, created_unix=time.time(),
+                              vehicle=VehicleSession(config, self.graph),
+                              last_seen=self._clock())
+        self.triplog.create_session(LoggedSession(session.id, owner, vehicle_id, options,
+                                                  session.created_unix))
+        self._sessions[session.id] = session
+        log.info("session %s created for vehicle %r (%s)", session.id, vehicle_id, options)
+        return session
+
+    def get(self, session_id: str, owner: str) -> LiveSession:
+        session = self._sessions.get(session_id)
+        if session is None or session.owner != owner:
+            raise SessionNotFound(f"no session {session_id!r}")
+        return session
+
+    def sessions(self, owner: str) -> list[LiveSession]:
+        return [s for s in self._sessions.values() if s.owner == owner]
+
+    def ingest(self, session: LiveSession, records: list[Any]) -> BatchResult:
+        """Apply a batch, then log its accepted packets; returns once they are on disk.
+
+        If the log cannot be written the session is rebuilt from its log, so that memory
+        never holds packets the log lacks, and the error propagates (nothing acknowledged).
+        """
+        result = session.vehicle.add_records(records)
+        refused = {r.index for r in result.rejections}
+        accepted = [r for i, r in enumerate(records) if i not in refused
+                    and not (isinstance(r, dict) and r.get("kind") == "truth")]
+        try:
+            self.triplog.append(session.id, session.packets, accepted)
+        except sqlite3.Error:
+            log.exception("session %s: trip log write failed; rebuilding from the log",
+                          session.id)
+            self._sessions[session.id] = self._replay(session)
+            raise
+        session.packets += len(accepted)
+        session.rejected += len(result.rejections)
+        session.last_seen = self._clock()
+        return result
+
+    def delete(self, session_id: str, owner: str) -> None:
+        self.get(session_id, owner)
+        self._close(session_id)
+
+    def expire_idle(self) -> list[str]:
+        """End the sessions idle for longer than the timeout; return their ids."""
+        cutoff = self._clock() - self.idle_timeout_s
+        idle = [s.id for s in self._sessions.values() if s.last_seen < cutoff]
+        for session_id in idle:
+            log.info("session %s expired after %.0f s idle", session_id, self.idle_timeout_s)
+            self._close(session_id)
+        return idle
+
+    def restore(self) -> int:
+        """Rebuild every open session of the trip log (after a restart); return how many."""
+        for logged in self.triplog.open_sessions():
+            shell = LiveSession(id=logged.id, owner=logged.owner, vehicle_id=logged.vehicle_id,
+                                options=logged.options, created_unix=logged.created_unix,
+                                vehicle=VehicleSession(config_from_options(logged.options),
+                                                       self.graph))
+            self._sessions[logged.id] = self._replay(shell)
+            log.info("session %s restored: %d packets replayed", logged.id,
+                     self._sessions[logged.id].packets)
+        return len(self._sessions)
+
+    def _replay(self, session: LiveSession) -> LiveSession:
+        vehicle = VehicleSession(config_from_options(session.options), self.graph)
+        count = 0
+        for record in self.triplog.packets(session.id):
+            vehicle.add_records([record])
+            count += 1
+        return LiveSession(id=session.id, owner=session.owner, vehicle_id=session.vehicle_id,
+                           options=session.options, created_unix=session.created_unix,
+                           vehicle=vehicle, packets=count, rejected=session.rejected,
+                           last_seen=self._clock())
+
+    def _close(self, session_id: str) -> None:
+        self.triplog.close_session(session_id)
+        del self._sessions[session_id]

@@ -128,7 +128,8 @@ class RoadGraph:
         """The single nearest edge, however far (start-up when nothing is within a radius)."""
         found = self._grid.nearest(x_m, y_m)
         if found is None:
-            raise RoadGraphError("the road graph has no edges")
+            raise RoadGraphError(f"no edge near ({x_m}, {y_m}): the graph is empty or the point "
+                                 "is outside what the map's projection can hold")
         return NearEdge(self._keys[found[0]], found[1])
 
     def project(self, edge: EdgeKey, x_m: float, y_m: float) -> EdgeProjection:

@@ -50,11 +50,18 @@ class SegmentGrid:
         return {k: np.array(v, dtype=np.int64) for k, v in cells.items()}
 
     def near(self, x_m: float, y_m: float, radius_m: float) -> list[tuple[int, float]]:
-        """``(polyline index, distance)`` for each polyline within ``radius_m``, nearest first."""
+        """``(polyline index, distance)`` for each polyline within ``radius_m``, nearest first.
+
+        A point that is not finite (a position the map's projection cannot hold, such as a
+        pole in a UTM frame) is near nothing."""
+        if not (math.isfinite(x_m) and math.isfinite(y_m)):
+            return []
         return self._nearest_per_owner(self._candidates(x_m, y_m, radius_m), x_m, y_m, radius_m)
 
     def nearest(self, x_m: float, y_m: float) -> tuple[int, float] | None:
         """The nearest polyline however far: widening searches, then every segment."""
+        if not (math.isfinite(x_m) and math.isfinite(y_m)):
+            return None
         radius = self.cell_m
         while radius <= self._extent_m:
             found = self.near(x_m, y_m, radius)

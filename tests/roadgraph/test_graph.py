@@ -133,3 +133,11 @@ def test_nearest_edge_far_outside_the_map(sample_graph: RoadGraph) -> None:
                for e in sample_graph.edges)
     assert far.distance_m == pytest.approx(best)
     assert sample_graph.edges_near(n.x_m + 20_000.0, n.y_m, 100.0) == []
+
+
+def test_points_the_projection_cannot_hold_are_near_nothing(sample_graph: RoadGraph) -> None:
+    x, y = sample_graph.frame.to_local(0.0, -90.0)  # the south pole in Monaco's UTM zone
+    assert sample_graph.edges_near(x, y, 30.0) == []
+    assert sample_graph.edges_near(math.inf, 0.0, 30.0) == []
+    with pytest.raises(RoadGraphError, match="outside what the map's projection can hold"):
+        sample_graph.nearest_edge(math.nan, 0.0)

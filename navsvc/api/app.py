@@ -1,0 +1,147 @@
+"""The FastAPI application: routers under ``/v1``, errors as JSON, limits, session upkeep.
+
+``create_app(settings)`` opens the road graph and the trip log, restores the sessions that were
+open when the server last stopped (crash included), and expires idle sessions in the background.
+Every error body is ``{"error": {"code", "message"[, "fields"]}}``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any
+
+from fastapi import FastAPI, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from navsvc import __version__
+from navsvc.api.deps import AppState
+from navsvc.api.routes import maps, match, ops, sessions, stream
+from navsvc.api.settings import Settings
+from navsvc.errors import ConfigError, LimitExceeded, NavsvcError, SessionNotFound, TraceError
+from navsvc.metrics import Metrics
+from navsvc.session import SessionStore
+from navsvc.triplog import TripLog
+from roadgraph import RoadGraph, RoadGraphError
+
+log = logging.getLogger(__name__)
+
+_STATUS = {SessionNotFound: 404, LimitExceeded: 429, ConfigError: 422, TraceError: 422}
+_CODES = {400: "bad_request", 401: "unauthorized", 404: "not_found", 405: "method_not_allowed",
+          409: "conflict", 413: "too_large", 422: "invalid_request", 429: "limit_exceeded",
+          503: "unavailable"}
+
+
+def create_app(settings: Settings) -> FastAPI:
+    """The service for one map. Opening the map or trip log fails here, not on first use."""
+    graph = RoadGraph.open(settings.map_path)
+    triplog = TripLog(settings.triplog, sync=settings.triplog_sync)
+    store = SessionStore(graph, triplog, idle_timeout_s=settings.session_idle_s,
+                         max_sessions_per_owner=settings.max_sessions_per_key)
+    state = AppState(settings=settings, graph=graph, store=store, metrics=Metrics())
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        restored = store.restore()
+        state.metrics.sessions.set(restored)
+        log.info("serving map %r (%s); trip log %s; %d sessions restored", graph.map_id,
+                 settings.map_path, settings.triplog, restored)
+        upkeep = asyncio.create_task(_expire_idle(state))
+        yield
+        upkeep.cancel()
+        triplog.close()
+
+    app = FastAPI(title="navsvc", version=__version__, lifespan=lifespan,
+                  description="Map-matching navigation: vehicles stream sensor packets, the "
+                              "service fuses them and matches them onto the road graph.")
+    app.state.navsvc = state
+    for module in (sessions, stream, match, maps, ops):
+        app.include_router(module.router, prefix="/v1")
+    _add_error_handlers(app)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    return app
+
+
+async def _expire_idle(state: AppState) -> None:
+    period = min(30.0, state.settings.session_idle_s / 4.0)
+    while True:
+        await asyncio.sleep(period)
+        expired = state.store.expire_idle()
+        state.metrics.sessions_expired.inc(len(expired))
+        state.metrics.sessions.set(len(state.store))
+
+
+def _error(status: int, message: str, **extra: Any) -> JSONResponse:
+    code = _CODES.get(status, "error")
+    return JSONResponse({"error": {"code": code, "message": message, **extra}}, status)
+
+
+def _add_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(HTTPException)
+    async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
+        return _error(exc.status_code, str(exc.detail))
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        fields = [{"field": ".".join(str(p) for p in e["loc"]), "message": e["msg"]}
+                  for e in exc.errors()]
+        summary = "; ".join(f"{f['field']}: {f['message']}" for f in fields[:5])
+        return _error(422, f"invalid request: {summary}", fields=fields)
+
+    @app.exception_handler(NavsvcError)
+    async def refused(request: Request, exc: NavsvcError) -> JSONResponse:
+        return _error(_STATUS.get(type(exc), 422), str(exc))
+
+    @app.exception_handler(RoadGraphError)
+    async def map_error(request: Request, exc: RoadGraphError) -> JSONResponse:
+        return _error(503, f"map unavailable: {exc}")
+
+
+class BodySizeLimit:
+    """Refuse request bodies over ``max_bytes`` with 413, whether or not they say their size."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
+            await self._refuse(scope, receive, send)
+            return
+        body, more = bytearray(), True
+        while more:
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                return
+            body += message.get("body", b"")
+            more = message.get("more_body", False)
+            if len(body) > self.max_bytes:
+                await self._refuse(scope, receive, send)
+                return
+        await self.app(scope, _replay(bytes(body)), send)
+
+    async def _refuse(self, scope: Scope, receive: Receive, send: Send) -> None:
+        response = _error(413, f"request body over {self.max_bytes} bytes "
+                               "(NAVSVC_MAX_BODY_BYTES)")
+        await response(scope, receive, send)
+
+
+def _replay(body: bytes) -> Callable[[], Awaitable[Message]]:
+    sent = False
+
+    async def receive() -> Message:
+        nonlocal sent
+        if not sent:
+            sent = True
+            return {"type": "http.request", "body": body, "more_body": False}
+        await asyncio.Event().wait()  # like a client that stays connected
+        return {"type": "http.disconnect"}
+    return receive

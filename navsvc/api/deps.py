@@ -1,0 +1,53 @@
+"""What route handlers receive: the app's state and the caller's identity."""
+
+from __future__ import annotations
+
+import secrets
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Request, WebSocket
+from fastapi.security import APIKeyHeader
+
+from navsvc.api.settings import Settings
+from navsvc.metrics import Metrics
+from navsvc.session import SessionStore, owner_of
+from roadgraph import RoadGraph
+
+API_KEY_HEADER = "X-API-Key"
+_api_key = APIKeyHeader(name=API_KEY_HEADER, auto_error=False,
+                        description="required when the server has NAVSVC_API_KEYS set")
+
+
+@dataclass
+class AppState:
+    settings: Settings
+    graph: RoadGraph
+    store: SessionStore
+    metrics: Metrics
+
+
+def get_state(request: Request) -> AppState:
+    state: AppState = request.app.state.navsvc
+    return state
+
+
+def check_key(state: AppState, key: str | None) -> str:
+    """The owner the key stands for; 401 when keys are required and this one is not valid."""
+    keys = state.settings.api_keys
+    if keys and not (key and any(secrets.compare_digest(key, k) for k in keys)):
+        raise HTTPException(401, "missing or unknown API key (header X-API-Key)")
+    return owner_of(key)
+
+
+def get_owner(request: Request, key: Annotated[str | None, Depends(_api_key)]) -> str:
+    return check_key(get_state(request), key)
+
+
+def websocket_state(websocket: WebSocket) -> AppState:
+    state: AppState = websocket.app.state.navsvc
+    return state
+
+
+StateDep = Annotated[AppState, Depends(get_state)]
+OwnerDep = Annotated[str, Depends(get_owner)]

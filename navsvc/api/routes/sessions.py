@@ -1,0 +1,102 @@
+"""Sessions: create, inspect, delete; packets in by POST; the latest position."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from typing import Any
+
+from fastapi import APIRouter, Body, HTTPException, Response
+
+from navsvc.api.deps import AppState, OwnerDep, StateDep
+from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
+from navsvc.session import BatchResult, LiveSession
+from navsvc.wire.positions import position_json
+
+router = APIRouter(prefix="/sessions", tags=["sessions"],
+                   responses={401: {"model": ErrorBody}, 404: {"model": ErrorBody}})
+
+
+def session_info(state: AppState, s: LiveSession) -> SessionInfo:
+    position = s.vehicle.last_position
+    return SessionInfo(
+        id=s.id, vehicle_id=s.vehicle_id, map=state.graph.map_id, options=s.options,
+        created_unix=s.created_unix, packets_accepted=s.packets, packets_rejected=s.rejected,
+        position=None if position is None else position_json(position, state.graph.frame))
+
+
+def ingest(state: AppState, session: LiveSession, packets: list[Any]) -> BatchReply:
+    """Apply a batch (API and WebSocket alike), count it, and describe the result."""
+    limit = state.settings.max_batch_packets
+    if len(packets) > limit:
+        raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
+    start = time.perf_counter()
+    try:
+        result: BatchResult = state.store.ingest(session, packets)
+    except sqlite3.Error as exc:
+        raise HTTPException(503, f"the trip log cannot be written ({exc}); the batch was not "
+                                 "applied, send it again") from exc
+    frame = state.graph.frame
+    positions = [position_json(p, frame) for p in result.positions]
+    m = state.metrics
+    m.batch_seconds.observe(time.perf_counter() - start)
+    m.packets_accepted.inc(result.accepted)
+    for r in result.rejections:
+        m.packets_rejected.labels(r.reason.code).inc()
+    m.positions.inc(len(positions))
+    return BatchReply(accepted=result.accepted,
+                      rejected=[r.to_json() for r in result.rejections],  # type: ignore[misc]
+                      positions=positions)
+
+
+@router.post("", status_code=201, response_model=SessionInfo,
+             responses={422: {"model": ErrorBody}, 429: {"model": ErrorBody}})
+async def create_session(body: SessionCreate, state: StateDep, owner: OwnerDep) -> SessionInfo:
+    """Start a session for one vehicle."""
+    session = state.store.create(owner, body.vehicle_id, body.options())
+    state.metrics.sessions.set(len(state.store))
+    return session_info(state, session)
+
+
+@router.get("", response_model=SessionList)
+async def list_sessions(state: StateDep, owner: OwnerDep) -> SessionList:
+    """The caller's open sessions."""
+    return SessionList(sessions=[session_info(state, s) for s in state.store.sessions(owner)])
+
+
+@router.get("/{session_id}", response_model=SessionInfo)
+async def get_session(session_id: str, state: StateDep, owner: OwnerDep) -> SessionInfo:
+    return session_info(state, state.store.get(session_id, owner))
+
+
+@router.delete("/{session_id}", status_code=204)
+async def delete_session(session_id: str, state: StateDep, owner: OwnerDep) -> Response:
+    """End a session and drop its trip log."""
+    state.store.delete(session_id, owner)
+    state.metrics.sessions.set(len(state.store))
+    return Response(status_code=204)
+
+
+@router.post("/{session_id}/packets", response_model=BatchReply,
+             responses={413: {"model": ErrorBody}, 422: {"model": ErrorBody}})
+async def post_packets(
+    session_id: str, state: StateDep, owner: OwnerDep,
+    packets: list[Any] = Body(  # noqa: B008 (FastAPI's way to declare a bare array body)
+        description="sensor packets (interfaces.md), oldest first; a bad packet is rejected "
+                    "alone and reported by index", examples=[[
+                        {"t": 0.0, "kind": "gps", "lat": 43.7384, "lon": 7.4246},
+                        {"t": 0.01, "kind": "imu", "yaw_rate_dps": 1.5}]]),
+) -> BatchReply:
+    """Apply packets in order; the reply comes once the accepted ones are in the trip log."""
+    return ingest(state, state.store.get(session_id, owner), packets)
+
+
+@router.get("/{session_id}/position", responses={200: {"description": "matched position"}})
+async def get_position(session_id: str, state: StateDep, owner: OwnerDep) -> dict[str, Any]:
+    """The session's latest matched position (reading it changes nothing, so a restored
+    session answers the same)."""
+    session = state.store.get(session_id, owner)
+    position = session.vehicle.last_position
+    if position is None:
+        raise HTTPException(404, f"session {session_id!r} has no position yet (no GPS fix)")
+    return position_json(position, state.graph.frame)

@@ -1,0 +1,86 @@
+"""Service settings: command-line options over environment variables over defaults.
+
+| variable | default | what |
+|---|---|---|
+| ``NAVSVC_MAP`` | (required) | road-graph database to serve |
+| ``NAVSVC_TRIPLOG`` | ``<map>.trips.db`` beside the map | trip log (SQLite, WAL) |
+| ``NAVSVC_TRIPLOG_SYNC`` | ``normal`` | ``full``: fsync each batch (survives power loss) |
+| ``NAVSVC_API_KEYS`` | (empty: open) | comma-separated keys accepted in ``X-API-Key`` |
+| ``NAVSVC_MAX_BODY_BYTES`` | 4194304 | largest request body (413 beyond) |
+| ``NAVSVC_MAX_BATCH_PACKETS`` | 1000 | packets per POST or WebSocket message (413 beyond) |
+| ``NAVSVC_MAX_TRACE_POINTS`` | 20000 | points per ``POST /match`` |
+| ``NAVSVC_MAX_SESSIONS_PER_KEY`` | 10000 | open sessions per API key (429 beyond) |
+| ``NAVSVC_SESSION_IDLE_S`` | 3600 | a session with no packet for this long ends |
+| ``NAVSVC_WS_QUEUE`` | 64 | replies queued per WebSocket before the oldest is dropped |
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from navsvc.errors import ConfigError
+from navsvc.triplog import triplog_path_for
+
+
+@dataclass(frozen=True)
+class Settings:
+    map_path: Path
+    triplog_path: Path | None = None  # None: beside the map
+    triplog_sync: str = "normal"
+    api_keys: frozenset[str] = frozenset()
+    max_body_bytes: int = 4 * 1024 * 1024
+    max_batch_packets: int = 1000
+    max_trace_points: int = 20_000
+    max_sessions_per_key: int = 10_000
+    session_idle_s: float = 3600.0
+    ws_queue_messages: int = 64
+
+    def __post_init__(self) -> None:
+        for name in ("max_body_bytes", "max_batch_packets", "max_trace_points",
+                     "max_sessions_per_key", "session_idle_s", "ws_queue_messages"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.triplog_sync not in ("normal", "full"):
+            raise ConfigError(f"triplog_sync must be normal or full, got {self.triplog_sync!r}")
+
+    @property
+    def triplog(self) -> Path:
+        return self.triplog_path or triplog_path_for(self.map_path)
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] = os.environ, **overrides: Any) -> Settings:
+        """Settings from ``NAVSVC_*`` variables; ``overrides`` that are not None win."""
+        values: dict[str, Any] = {}
+        for f in dataclasses.fields(cls):
+            name = "NAVSVC_" + _ENV_NAMES.get(f.name, f.name).upper()
+            if name in env and env[name] != "":
+                values[f.name] = _convert(f.name, env[name], name)
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        if "map_path" not in values:
+            raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
+        return cls(**values)
+
+
+_ENV_NAMES = {"map_path": "map", "triplog_path": "triplog"}
+_INTS = {"max_body_bytes", "max_batch_packets", "max_trace_points", "max_sessions_per_key",
+         "ws_queue_messages"}
+
+
+def _convert(field: str, text: str, env_name: str) -> Any:
+    try:
+        if field in ("map_path", "triplog_path"):
+            return Path(text)
+        if field == "api_keys":
+            return frozenset(k.strip() for k in text.split(",") if k.strip())
+        if field in _INTS:
+            return int(text)
+        if field == "session_idle_s":
+            return float(text)
+        return text
+    except ValueError:
+        raise ConfigError(f"{env_name}={text!r} is not a valid number") from None
