@@ -5,6 +5,8 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP_SOURCE ?= maps/monaco.osm.gz
 MAP_DB ?= maps/monaco.db
+HOST ?= 127.0.0.1
+PORT ?= 8000
 
 .PHONY: run test bench map clean
 
@@ -20,7 +22,8 @@ $(MAP_DB): $(MAP_SOURCE) $(BIN)/.installed
 map: $(MAP_DB)
 
 run: $(MAP_DB)
-	$(BIN)/roadgraph info $(MAP_DB)
+	@echo "navsvc: serving $(MAP_DB) on http://$(HOST):$(PORT)/v1 (API docs: /docs); Ctrl-C stops"
+	$(BIN)/navsvc serve --map $(MAP_DB) --host $(HOST) --port $(PORT)
 
 test: $(BIN)/.installed
 	$(BIN)/python -m pytest

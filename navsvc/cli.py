@@ -155,6 +155,31 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--triplog", type=Path, metavar="FILE",
                     help="trip log SQLite file (default: $NAVSVC_TRIPLOG, else DB's stem + "
                     ".trips.db beside DB)")
+
+    sd = sub.add_parser("send", help="stream a drive to a running service",
+                        description="Create a session on a running `navsvc serve`, stream the "
+                        "packets of a drive file over its WebSocket (truth records stay "
+                        "behind), and write the matched positions it answers with (JSON "
+                        "Lines, the same as `navsvc run`, so `navsvc evaluate` reads them).")
+    sd.add_argument("input", type=Path, metavar="DRIVE.jsonl", help="sensor packets")
+    sd.add_argument("--url", default="http://127.0.0.1:8000",
+                    help="the service (default http://127.0.0.1:8000)")
+    sd.add_argument("-o", "--output", type=Path, metavar="OUT.jsonl",
+                    help="where to write matched positions (default: only a summary)")
+    sd.add_argument("--vehicle-id", default="navsvc-send", help="the session's vehicle id")
+    sd.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
+                    help="sensor configuration; packets of other sensors stay behind "
+                    "(default gyro_odometer)")
+    sd.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
+                    help="GPS fusion mode (default ekf)")
+    sd.add_argument("--map-feedback", action="store_true", help="road constraint feedback")
+    sd.add_argument("--batch", type=int, default=10, help="packets per message (default 10)")
+    sd.add_argument("--realtime", action="store_true",
+                    help="send at the drive's own pace instead of as fast as possible")
+    sd.add_argument("--api-key", default=os.environ.get("NAVSVC_API_KEY"),
+                    help="API key (default: $NAVSVC_API_KEY)")
+    sd.add_argument("--json", action="store_true", help="print a summary as JSON")
+    sd.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -284,6 +309,36 @@ def _cmd_match(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_send(args: argparse.Namespace) -> int:
+    from navsvc.wire.client import create_session, stream_packets
+
+    left_behind = {"truth", *SENSOR_KINDS["all"]} - set(SENSOR_KINDS[args.sensors])
+    lines = list(iter_lines(args.input))
+    bad = [line for line in lines if line.error is not None]
+    for line in bad[:5]:
+        log.warning("%s:%d: %s", args.input, line.number, line.error)
+    packets = [line.value for line in lines if line.error is None
+               and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
+    options = {"vehicle_id": args.vehicle_id, "sensors": args.sensors, "fusion": args.fusion,
+               "map_feedback": args.map_feedback}
+    session_id = create_session(args.url, options, args.api_key)
+    with tqdm(total=len(packets), desc="send", unit="pkt", disable=args.quiet,
+              leave=False) as bar:
+        result = stream_packets(args.url, session_id, packets, batch=args.batch,
+                                realtime=args.realtime, api_key=args.api_key,
+                                progress=bar.update)
+    if args.output:
+        write_records(args.output, result.positions)
+    summary = {"session_id": session_id, "packets": len(packets), "accepted": result.accepted,
+               "rejected": len(result.rejected), "positions": len(result.positions),
+               "unreadable_lines": len(bad), "output": str(args.output) if args.output else None}
+    print(json.dumps(summary) if args.json else
+          f"session {session_id}: {result.accepted} of {len(packets)} packets accepted, "
+          f"{len(result.positions)} positions" + (f" written to {args.output}" if args.output
+                                                    else ""))
+    return 0
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn  # only the service needs it
 
@@ -298,4 +353,4 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 _COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate,
-             "match": _cmd_match, "serve": _cmd_serve}
+             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send}
