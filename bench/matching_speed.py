@@ -38,8 +38,8 @@ from report import drives_parser, print_table, write_json
 from shapely.geometry import LineString
 from tqdm import tqdm
 
-from navsvc.matching.route import match_trace
 from navsvc.sim.simulate import DriveSpec, simulate_drive
+from navsvc.wire.route import match_trace
 from navsvc.wire.traces import TraceFix
 from roadgraph import EdgeKey, RoadGraph
 

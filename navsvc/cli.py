@@ -24,12 +24,12 @@ from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
 from navsvc.fusion.engine import GpsMode
 from navsvc.fusion.motion import SensorConfig
 from navsvc.matching.hmm import HmmConfig
-from navsvc.matching.route import match_trace
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import Evaluation, evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.wire.jsonl import iter_lines, read_records, write_records
 from navsvc.wire.positions import position_json
+from navsvc.wire.route import match_trace
 from navsvc.wire.traces import read_trace
 from roadgraph import RoadGraph, RoadGraphError
 

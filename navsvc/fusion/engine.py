@@ -519,4 +519,9 @@ def _reset_variance(P: Array, i: int, variance: float) -> None:
 
 
 def _snapshot(state: FusionState) -> FusionState:
-    return replace(state, x=state.x.copy(), P=state.P.copy(), gps=copy.copy(state.gps))
+    """A copy that later updates cannot reach (taken at every packet: kept cheap; the only
+    mutable fields are the two arrays, ``gps`` is frozen)."""
+    snap = copy.copy(state)
+    snap.x = state.x.copy()
+    snap.P = state.P.copy()
+    return snap

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from navsvc.cli import main
 from navsvc.errors import TraceError
 from navsvc.matching.hmm import HmmConfig
-from navsvc.matching.route import match_trace
+from navsvc.wire.route import match_trace
 from navsvc.wire.traces import TraceFix, clean, parse_trace
 from roadgraph import RoadGraph, import_map
 from tests.conftest import DATA

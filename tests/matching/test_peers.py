@@ -12,7 +12,7 @@ import shapely
 
 from navsvc.cli import main
 from navsvc.errors import TraceError
-from navsvc.matching.route import match_trace
+from navsvc.wire.route import match_trace
 from navsvc.wire.traces import read_trace
 from roadgraph import RoadGraph, import_map
 from tests.conftest import DATA

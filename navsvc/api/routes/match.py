@@ -10,7 +10,7 @@ from fastapi import APIRouter, HTTPException
 from navsvc.api.deps import OwnerDep, StateDep
 from navsvc.api.models import ErrorBody, MatchRequest
 from navsvc.matching.hmm import HmmConfig
-from navsvc.matching.route import match_trace
+from navsvc.wire.route import match_trace
 from navsvc.wire.traces import TraceFix, parse_trace
 
 router = APIRouter(tags=["matching"])

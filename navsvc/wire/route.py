@@ -1,4 +1,5 @@
-"""A whole trace matched to a route, as the JSON of ``navsvc match`` and ``POST /v1/match``."""
+"""A whole trace matched to a route (the HMM of ``navsvc.matching.hmm``), as the JSON of
+``navsvc match`` and ``POST /v1/match``."""
 
 from __future__ import annotations
 

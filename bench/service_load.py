@@ -1,0 +1,192 @@
+"""Load on the real service: throughput, latency and memory with many WebSocket sessions.
+
+Starts ``navsvc serve`` as its own process on a copy of the map (loopback) and drives it from
+this process (asyncio, one WebSocket per session). All sessions replay the same simulated
+gyro + odometer drive (100 Hz IMU, 50 Hz odometer, 1 Hz GPS).
+
+- throughput: sessions send their packets as fast as the server answers (batches of 100);
+  packets per second accepted, end to end.
+- real rate: every 0.1 s each session sends the packets of that 0.1 s (10 IMU, 5 odometer,
+  and the GPS fix when there is one); latency is from sending a message that holds a GPS fix
+  to receiving the reply with its matched position.
+- GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
+- memory: the server's resident memory before and after opening the sessions, per session.
+
+The server runs in one process, so it uses one core; the load generator takes the other.
+
+    python bench/service_load.py [--map maps/monaco.db] [--seconds 20]
+        [--real-rate 1,100,200] [--gps-only 1000] [--throughput 1,4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import shutil
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import websockets
+from report import RESULTS, print_table, write_json
+
+from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+from roadgraph import RoadGraph
+from tests.api.server import Server, start_server
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def drive_packets(map_path: Path, seconds: float) -> list[dict[str, Any]]:
+    drive = simulate_drive(RoadGraph.open(map_path), DriveSpec(duration_s=seconds, seed=7,
+                                                               tunnels_block_gps=False))
+    kinds = set(SENSOR_KINDS["gyro_odometer"])
+    return [r for r in drive if r["kind"] in kinds]
+
+
+def tick_batches(packets: list[dict[str, Any]], tick_s: float = 0.1) -> list[list[dict]]:
+    """The packets of each ``tick_s`` of the drive, in order (empty ticks kept)."""
+    end = packets[-1]["t"]
+    out: list[list[dict]] = [[] for _ in range(int(end / tick_s) + 1)]
+    for p in packets:
+        out[int(p["t"] / tick_s)].append(p)
+    return out
+
+
+async def open_sessions(server: Server, count: int, sensors: str) -> list[str]:
+    async with httpx.AsyncClient(base_url=server.url + "/v1", timeout=60.0) as client:
+        ids = []
+        for _ in range(count):
+            r = await client.post("/sessions", json={"vehicle_id": "load", "sensors": sensors})
+            r.raise_for_status()
+            ids.append(r.json()["id"])
+        return ids
+
+
+async def close_sessions(server: Server, ids: list[str]) -> None:
+    async with httpx.AsyncClient(base_url=server.url + "/v1", timeout=60.0) as client:
+        for sid in ids:
+            await client.delete(f"/sessions/{sid}")
+
+
+async def _exchange(ws: Any, batch: list[dict]) -> dict[str, Any]:
+    await ws.send(json.dumps(batch))
+    reply: dict[str, Any] = json.loads(await ws.recv())
+    if reply.get("type") != "result":
+        raise RuntimeError(f"server answered {reply}")
+    return reply
+
+
+async def throughput(server: Server, packets: list[dict], sessions: int) -> dict[str, Any]:
+    ids = await open_sessions(server, sessions, "gyro_odometer")
+    batches = [packets[i:i + 100] for i in range(0, len(packets), 100)]
+    accepted = 0
+
+    async def one(sid: str) -> None:
+        nonlocal accepted
+        async with websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
+                                      max_size=None) as ws:
+            for batch in batches:
+                accepted += (await _exchange(ws, batch))["accepted"]
+
+    start = time.perf_counter()
+    await asyncio.gather(*(one(s) for s in ids))
+    elapsed = time.perf_counter() - start
+    await close_sessions(server, ids)
+    return {"scenario": "throughput", "sessions": sessions, "packets": accepted,
+            "seconds": elapsed, "packets_per_s": accepted / elapsed}
+
+
+async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seconds: float,
+                    sensors: str) -> dict[str, Any]:
+    before = rss_mb(server.process.pid)
+    ids = await open_sessions(server, sessions, sensors)
+    latencies: list[float] = []
+    late = 0
+    sent = 0
+    sockets = [await websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
+                                        max_size=None) for sid in ids]
+    start = time.perf_counter() + 0.5
+
+    async def one(k: int, ws: Any) -> None:
+        nonlocal late, sent
+        offset = (k % 10) * 0.01  # spread the sessions over each tick
+        for i, batch in enumerate(ticks[:int(seconds * 10)]):
+            due = start + i * 0.1 + offset
+            wait = due - time.perf_counter()
+            if wait > 0:
+                await asyncio.sleep(wait)
+            elif wait < -0.1:
+                late += 1
+            if not batch:
+                continue
+            t0 = time.perf_counter()
+            reply = await _exchange(ws, batch)
+            sent += len(batch)
+            if reply["positions"] and any(p["kind"] == "gps" for p in batch):
+                latencies.append(time.perf_counter() - t0)
+
+    await asyncio.gather(*(one(k, ws) for k, ws in enumerate(sockets)))
+    after = rss_mb(server.process.pid)
+    for ws in sockets:
+        await ws.close()
+    await close_sessions(server, ids)
+    lat_ms = sorted(1e3 * x for x in latencies)
+    return {"scenario": f"real rate ({sensors})", "sessions": sessions, "packets": sent,
+            "seconds": seconds, "packets_per_s": sent / seconds,
+            "latency_p50_ms": statistics.median(lat_ms),
+            "latency_p99_ms": lat_ms[min(len(lat_ms) - 1, int(0.99 * len(lat_ms)))],
+            "late_ticks": late, "rss_before_mb": before, "rss_after_mb": after,
+            "mb_per_session": (after - before) / sessions}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--map", type=Path, default=RESULTS.parent.parent / "maps" / "monaco.db")
+    parser.add_argument("--seconds", type=float, default=20.0, help="real-rate run length")
+    parser.add_argument("--real-rate", default="1,100,200", help="session counts")
+    parser.add_argument("--gps-only", default="1000", help="session counts")
+    parser.add_argument("--throughput", default="1,4", help="session counts")
+    args = parser.parse_args()
+    packets = drive_packets(args.map, max(60.0, args.seconds + 5.0))
+    gps_ticks = [[p for p in batch if p["kind"] == "gps"] for batch in tick_batches(packets)]
+    with tempfile.TemporaryDirectory() as tmp:
+        db = Path(tmp) / args.map.name
+        shutil.copy(args.map, db)
+        server = start_server(db, Path(tmp) / "server.log",
+                              env={"NAVSVC_WS_QUEUE": "1024"})
+        rows: list[dict[str, Any]] = []
+        try:
+            for n in map(int, filter(None, args.throughput.split(","))):
+                rows.append(asyncio.run(throughput(server, packets, n)))
+                print(rows[-1])
+            for n in map(int, filter(None, args.real_rate.split(","))):
+                rows.append(asyncio.run(real_rate(server, tick_batches(packets), n,
+                                                  args.seconds, "gyro_odometer")))
+                print(rows[-1])
+            for n in map(int, filter(None, args.gps_only.split(","))):
+                rows.append(asyncio.run(real_rate(server, gps_ticks, n, args.seconds,
+                                                  "gps_only")))
+                print(rows[-1])
+        finally:
+            server.stop()
+    print_table("navsvc service under load (server: 1 process; loopback WebSocket)",
+                ["scenario", "sessions", "packets/s", "p50 ms", "p99 ms", "late ticks",
+                 "MB/session"],
+                [[r["scenario"], r["sessions"], r["packets_per_s"],
+                  r.get("latency_p50_ms", ""), r.get("latency_p99_ms", ""),
+                  r.get("late_ticks", ""), r.get("mb_per_session", "")] for r in rows])
+    write_json("service_load", {"rows": rows})
+
+
+if __name__ == "__main__":
+    main()
