@@ -19,7 +19,7 @@ COPY navsvc navsvc
 RUN pip install .
 COPY maps maps
 
-RUN useradd --system --create-home --uid 10001 navsvc \
+RUN useradd --create-home --uid 10001 navsvc \
     && mkdir -p /data \
     && roadgraph import maps/monaco.osm.gz -o /data/map.db --quiet \
     && chown -R navsvc /data
