@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import shutil
 import statistics
 import tempfile
@@ -44,6 +45,12 @@ def rss_mb(pid: int) -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds the process has used."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def drive_packets(map_path: Path, seconds: float) -> list[dict[str, Any]]:
@@ -98,12 +105,14 @@ async def throughput(server: Server, packets: list[dict], sessions: int) -> dict
             for batch in batches:
                 accepted += (await _exchange(ws, batch))["accepted"]
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), cpu_s(server.process.pid)
     await asyncio.gather(*(one(s) for s in ids))
     elapsed = time.perf_counter() - start
+    busy = (cpu_s(server.process.pid) - cpu) / elapsed
     await close_sessions(server, ids)
     return {"scenario": "throughput", "sessions": sessions, "packets": accepted,
-            "seconds": elapsed, "packets_per_s": accepted / elapsed}
+            "seconds": elapsed, "packets_per_s": accepted / elapsed, "server_cpu": busy,
+            "packets_per_cpu_s": accepted / elapsed / max(busy, 1e-9)}
 
 
 async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seconds: float,
@@ -116,19 +125,20 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
     sockets = [await websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
                                         max_size=None) for sid in ids]
     start = time.perf_counter() + 0.5
+    cpu = cpu_s(server.process.pid)
 
     async def one(k: int, ws: Any) -> None:
         nonlocal late, sent
-        offset = (k % 10) * 0.01  # spread the sessions over each tick
+        offset = k / len(sockets)  # spread the sessions' GPS fixes over the second
         for i, batch in enumerate(ticks[:int(seconds * 10)]):
+            if not batch:
+                continue
             due = start + i * 0.1 + offset
             wait = due - time.perf_counter()
             if wait > 0:
                 await asyncio.sleep(wait)
             elif wait < -0.1:
                 late += 1
-            if not batch:
-                continue
             t0 = time.perf_counter()
             reply = await _exchange(ws, batch)
             sent += len(batch)
@@ -137,6 +147,7 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
 
     await asyncio.gather(*(one(k, ws) for k, ws in enumerate(sockets)))
     after = rss_mb(server.process.pid)
+    busy = (cpu_s(server.process.pid) - cpu) / (time.perf_counter() - start)
     for ws in sockets:
         await ws.close()
     await close_sessions(server, ids)
@@ -145,7 +156,7 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
             "seconds": seconds, "packets_per_s": sent / seconds,
             "latency_p50_ms": statistics.median(lat_ms),
             "latency_p99_ms": lat_ms[min(len(lat_ms) - 1, int(0.99 * len(lat_ms)))],
-            "late_ticks": late, "rss_before_mb": before, "rss_after_mb": after,
+            "late_ticks": late, "server_cpu": busy, "rss_before_mb": before, "rss_after_mb": after,
             "mb_per_session": (after - before) / sessions}
 
 
@@ -180,9 +191,9 @@ def main() -> None:
         finally:
             server.stop()
     print_table("navsvc service under load (server: 1 process; loopback WebSocket)",
-                ["scenario", "sessions", "packets/s", "p50 ms", "p99 ms", "late ticks",
-                 "MB/session"],
-                [[r["scenario"], r["sessions"], r["packets_per_s"],
+                ["scenario", "sessions", "packets/s", "server CPU", "p50 ms", "p99 ms",
+                 "late ticks", "MB/session"],
+                [[r["scenario"], r["sessions"], r["packets_per_s"], r["server_cpu"],
                   r.get("latency_p50_ms", ""), r.get("latency_p99_ms", ""),
                   r.get("late_ticks", ""), r.get("mb_per_session", "")] for r in rows])
     write_json("service_load", {"rows": rows})

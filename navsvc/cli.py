@@ -347,8 +347,10 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     logging.getLogger("navsvc").setLevel(logging.INFO)  # a service says what it does
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog)
     app = create_app(settings)
+    # no per-message compression: replies are small, and deflate cost more CPU than it saved
     uvicorn.run(app, host=args.host, port=args.port, ws_ping_interval=20.0,
-                ws_ping_timeout=20.0, log_level="debug" if args.verbose else "info")
+                ws_ping_timeout=20.0, ws_per_message_deflate=False,
+                log_level="debug" if args.verbose else "info")
     return 0
 
 

@@ -24,7 +24,7 @@ from navsvc.api.routes import maps, match, ops, sessions, stream
 from navsvc.api.settings import Settings
 from navsvc.errors import ConfigError, LimitExceeded, NavsvcError, SessionNotFound, TraceError
 from navsvc.metrics import Metrics
-from navsvc.session import SessionStore
+from navsvc.session import SessionConfig, SessionStore, VehicleSession
 from navsvc.triplog import TripLog
 from roadgraph import RoadGraph, RoadGraphError
 
@@ -46,6 +46,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        warm_up(graph)
         restored = store.restore()
         state.metrics.sessions.set(restored)
         log.info("serving map %r (%s); trip log %s; %d sessions restored", graph.map_id,
@@ -64,6 +65,18 @@ def create_app(settings: Settings) -> FastAPI:
     _add_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     return app
+
+
+def warm_up(graph: RoadGraph) -> None:
+    """Run a few packets of every kind through a throwaway session, so that the compiled
+    kernels (numba) are loaded before the first client's packets rather than stalling them."""
+    node = graph.nodes[0]
+    session = VehicleSession(SessionConfig(), graph)
+    fixes = [{"t": float(i), "kind": "gps", "lat": node.lat_deg + 1e-4 * i,
+              "lon": node.lon_deg, "speed_mps": 11.0} for i in range(3)]
+    inertial = [{"t": 2.0 + 0.01 * i, "kind": "imu", "yaw_rate_dps": 0.0} for i in range(1, 5)]
+    odometer = [{"t": 2.0 + 0.02 * i, "kind": "odometer", "speed_mps": 11.0} for i in range(1, 3)]
+    session.add_records(sorted(fixes + inertial + odometer, key=lambda r: r["t"]))
 
 
 async def _expire_idle(state: AppState) -> None:
