@@ -36,6 +36,7 @@ bench: $(MAP_DB)
 	$(BIN)/python bench/comma2k19.py
 	$(BIN)/python bench/matching_eval.py --map $(MAP_DB)
 	$(BIN)/python bench/matching_speed.py --map $(MAP_DB)
+	PYTHONPATH=. $(BIN)/python bench/service_load.py --map $(MAP_DB)
 
 clean:
 	rm -rf $(VENV) $(MAP_DB) bench/results .pytest_cache .hypothesis
