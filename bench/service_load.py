@@ -103,7 +103,8 @@ async def throughput(server: Server, packets: list[dict], sessions: int) -> dict
         async with websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
                                       max_size=None) as ws:
             for batch in batches:
-                accepted += (await _exchange(ws, batch))["accepted"]
+                reply = await _exchange(ws, batch)  # not inside `+=`: other sessions add too
+                accepted += reply["accepted"]
 
     start, cpu = time.perf_counter(), cpu_s(server.process.pid)
     await asyncio.gather(*(one(s) for s in ids))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import logging
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
@@ -48,6 +49,8 @@ def create_app(settings: Settings) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         warm_up(graph)
         restored = store.restore()
+        gc.collect()
+        gc.freeze()  # the map and libraries stay: spare them the garbage collector's scans
         state.metrics.sessions.set(restored)
         log.info("serving map %r (%s); trip log %s; %d sessions restored", graph.map_id,
                  settings.map_path, settings.triplog, restored)
