@@ -1,0 +1,365 @@
+"""Strapdown inertial navigation and its loosely coupled GNSS error-state EKF (pure).
+
+Seed: Giroux, Gourdeau, Landry 2005 (see docs/seed-digest.md). Conventions follow KF-GINS so that
+its data and results compare directly: navigation frame north-east-down (NED), body frame
+forward-right-down, attitude as the direction-cosine matrix ``C_bn`` (body to navigation),
+position as geodetic latitude/longitude (radians) and ellipsoidal height (m) on WGS84, IMU input
+as angle and velocity increments over each sample interval.
+
+- Mechanisation: earth rate, transport rate and normal gravity; ``first_order`` (rotation-vector
+  attitude update, mid-point position) or the paper's ``rk4`` on the continuous equations with
+  the rates held over the step.
+- Error state (15): position error (NED, m), velocity error (NED, m/s), attitude error ψ (rad;
+  estimated attitude = (I + [ψ×]) true), gyro bias (rad/s), accelerometer bias (m/s²), the
+  biases as first-order Gauss–Markov processes.
+- Integrations: ``feedback`` (default; each correction goes into the navigation state and the
+  biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
+  open loop; the output is that solution less the estimated error, which keeps propagating).
+- GNSS position updates with lever arm and a chi-square gate.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.float64]
+
+WGS84_A = 6378137.0
+WGS84_E2 = 6.69437999014e-3
+EARTH_RATE_RPS = 7.2921151467e-5
+N_ERR = 15
+POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
+CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
+GATE_FLOOR_M = 0.5
+
+
+class Integration(enum.Enum):
+    FEEDBACK = "feedback"
+    FEEDFORWARD = "feedforward"
+
+
+class Mechanisation(enum.Enum):
+    FIRST_ORDER = "first_order"
+    RK4 = "rk4"
+
+
+# --- earth model and rotations --------------------------------------------------------------
+def radii_m(lat_rad: float) -> tuple[float, float]:
+    """Meridian and prime-vertical radii of curvature (RM, RN)."""
+    s2 = math.sin(lat_rad) ** 2
+    w = math.sqrt(1.0 - WGS84_E2 * s2)
+    return WGS84_A * (1.0 - WGS84_E2) / w**3, WGS84_A / w
+
+
+def normal_gravity_mps2(lat_rad: float, h_m: float) -> float:
+    """Somigliana normal gravity with the free-air height correction."""
+    s2 = math.sin(lat_rad) ** 2
+    g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
+    return g0 - 3.086e-6 * h_m
+
+
+def skew(v: Array) -> Array:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def rotation(rotvec: Array) -> Array:
+    """The rotation matrix of a rotation vector (Rodrigues)."""
+    angle = float(np.linalg.norm(rotvec))
+    k = skew(rotvec)
+    if angle < 1e-9:
+        return np.eye(3) + k + 0.5 * k @ k
+    return np.eye(3) + math.sin(angle) / angle * k + (1.0 - math.cos(angle)) / angle**2 * k @ k
+
+
+def euler_to_dcm(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Array:
+    """C_bn from roll, pitch, yaw (Z-Y-X rotation sequence)."""
+    cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), \
+        math.sin(pitch_rad)
+    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+    return np.array([
+        [cp * cy, -cr * sy + sr * sp * cy, sr * sy + cr * sp * cy],
+        [cp * sy, cr * cy + sr * sp * sy, -sr * cy + cr * sp * sy],
+        [-sp, sr * cp, cr * cp]])
+
+
+def dcm_to_euler(c: Array) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) of C_bn; yaw in [0, 2π)."""
+    pitch = math.atan2(-c[2, 0], math.hypot(c[2, 1], c[2, 2]))
+    return math.atan2(c[2, 1], c[2, 2]), pitch, math.atan2(c[1, 0], c[0, 0]) % (2 * math.pi)
+
+
+def level_from_accel(mean_f_b: Array) -> tuple[float, float]:
+    """Roll and pitch from the mean specific force of a static interval (coarse levelling)."""
+    fx, fy, fz = mean_f_b
+    return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
+
+
+def _orthonormal(c: Array) -> Array:
+    u, _, vt = np.linalg.svd(c)
+    result: Array = u @ vt
+    return result
+
+
+# --- navigation state and mechanisation ----------------------------------------------------
+@dataclass
+class NavState:
+    """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, sensor bias estimates."""
+
+    t: float
+    lat_rad: float
+    lon_rad: float
+    h_m: float
+    v_ned: Array
+    c_bn: Array
+    gyro_bias_rps: Array = field(default_factory=lambda: np.zeros(3))
+    accel_bias_mps2: Array = field(default_factory=lambda: np.zeros(3))
+
+    def copy(self) -> NavState:
+        return NavState(self.t, self.lat_rad, self.lon_rad, self.h_m, self.v_ned.copy(),
+                        self.c_bn.copy(), self.gyro_bias_rps.copy(),
+                        self.accel_bias_mps2.copy())
+
+
+def _rates(lat: float, h: float, v: Array) -> tuple[Array, Array]:
+    """Earth rate and transport rate in the navigation frame."""
+    rm, rn = radii_m(lat)
+    w_ie = EARTH_RATE_RPS * np.array([math.cos(lat), 0.0, -math.sin(lat)])
+    w_en = np.array([v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)])
+    return w_ie, w_en
+
+
+def _derivatives(lat: float, h: float, v: Array, c: Array, w_ib: Array,
+                 f_b: Array) -> tuple[Array, Array, Array]:
+    """d(lat, lon, h)/dt, dv/dt, dC/dt of the continuous strapdown equations."""
+    rm, rn = radii_m(lat)
+    w_ie, w_en = _rates(lat, h, v)
+    g = np.array([0.0, 0.0, normal_gravity_mps2(lat, h)])
+    dpos = np.array([v[0] / (rm + h), v[1] / ((rn + h) * math.cos(lat)), -v[2]])
+    dv = c @ f_b + g - np.cross(2.0 * w_ie + w_en, v)
+    dc = c @ skew(w_ib) - skew(w_ie + w_en) @ c
+    return dpos, dv, dc
+
+
+def mechanise(s: NavState, t: float, dtheta: Array, dvel: Array,
+              method: Mechanisation = Mechanisation.FIRST_ORDER) -> tuple[NavState, Array]:
+    """Advance the navigation state by one IMU interval; return it and the specific force in
+    the navigation frame (for the error model). Biases are removed from the increments."""
+    dt = t - s.t
+    dtheta = dtheta - s.gyro_bias_rps * dt
+    dvel = dvel - s.accel_bias_mps2 * dt
+    out = s.copy()
+    out.t = t
+    if method == Mechanisation.RK4:
+        return _rk4(s, out, dt, dtheta, dvel)
+    w_ie, w_en = _rates(s.lat_rad, s.h_m, s.v_ned)
+    c_mid = s.c_bn
+    dv_b = dvel + 0.5 * np.cross(dtheta, dvel)  # rotation compensation
+    f_n = c_mid @ dv_b / dt
+    g = np.array([0.0, 0.0, normal_gravity_mps2(s.lat_rad, s.h_m)])
+    out.v_ned = s.v_ned + c_mid @ dv_b + (g - np.cross(2.0 * w_ie + w_en, s.v_ned)) * dt
+    v_mid = 0.5 * (s.v_ned + out.v_ned)
+    rm, rn = radii_m(s.lat_rad)
+    out.h_m = s.h_m - v_mid[2] * dt
+    h_mid = 0.5 * (s.h_m + out.h_m)
+    out.lat_rad = s.lat_rad + v_mid[0] / (rm + h_mid) * dt
+    lat_mid = 0.5 * (s.lat_rad + out.lat_rad)
+    out.lon_rad = s.lon_rad + v_mid[1] / ((rn + h_mid) * math.cos(lat_mid)) * dt
+    out.c_bn = rotation(-(w_ie + w_en) * dt) @ s.c_bn @ rotation(dtheta)
+    return out, f_n
+
+
+def _rk4(s: NavState, out: NavState, dt: float, dtheta: Array,
+         dvel: Array) -> tuple[NavState, Array]:
+    w_ib, f_b = dtheta / dt, dvel / dt
+    y0 = (np.array([s.lat_rad, s.lon_rad, s.h_m]), s.v_ned, s.c_bn)
+
+    def f(y: tuple[Array, Array, Array]) -> tuple[Array, Array, Array]:
+        return _derivatives(y[0][0], y[0][2], y[1], y[2], w_ib, f_b)
+
+    def step(k: tuple[Array, Array, Array], a: float) -> tuple[Array, Array, Array]:
+        return (y0[0] + a * k[0], y0[1] + a * k[1], y0[2] + a * k[2])
+
+    k1 = f(y0)
+    k2 = f(step(k1, dt / 2))
+    k3 = f(step(k2, dt / 2))
+    k4 = f(step(k3, dt))
+    pos, v, c = (y0[i] + dt / 6.0 * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]) for i in range(3))
+    out.lat_rad, out.lon_rad, out.h_m = (float(x) for x in pos)
+    out.v_ned, out.c_bn = v, _orthonormal(c)
+    return out, s.c_bn @ f_b
+
+
+# --- the error-state filter ------------------------------------------------------------------
+@dataclass(frozen=True)
+class ImuNoise:
+    """Continuous noise densities and bias processes (KF-GINS's units converted to SI)."""
+
+    arw_rad_per_sqrt_s: float
+    vrw_mps_per_sqrt_s: float
+    gyro_bias_sigma_rps: float
+    accel_bias_sigma_mps2: float
+    bias_corr_time_s: float
+
+    @classmethod
+    def from_kfgins(cls, arw_deg_per_sqrt_h: float, vrw_mps_per_sqrt_h: float,
+                    gyro_bias_deg_per_h: float, accel_bias_mgal: float,
+                    corr_time_h: float) -> ImuNoise:
+        return cls(math.radians(arw_deg_per_sqrt_h) / 60.0, vrw_mps_per_sqrt_h / 60.0,
+                   math.radians(gyro_bias_deg_per_h) / 3600.0, accel_bias_mgal * 1e-5,
+                   corr_time_h * 3600.0)
+
+
+@dataclass
+class GnssFix:
+    t: float
+    lat_rad: float
+    lon_rad: float
+    h_m: float
+    sigma_ned_m: Array  # 1-σ north, east, down
+
+
+class InsFilter:
+    """One vehicle's INS with its 15-state error-state EKF."""
+
+    def __init__(self, state: NavState, p0: Array, noise: ImuNoise,
+                 lever_arm_b_m: Array | None = None,
+                 integration: Integration = Integration.FEEDBACK,
+                 mechanisation: Mechanisation = Mechanisation.FIRST_ORDER) -> None:
+        self.state = state  # the inertial solution (open loop in feedforward mode)
+        self.P = p0.copy()
+        self.dx = np.zeros(N_ERR)  # estimated error (stays zero in feedback mode)
+        self.noise = noise
+        self.lever_arm_b_m = np.zeros(3) if lever_arm_b_m is None else lever_arm_b_m
+        self.integration = integration
+        self.mechanisation = mechanisation
+        self.gated = 0
+
+    def predict(self, t: float, dtheta: Array, dvel: Array) -> None:
+        """One IMU interval: mechanise, then propagate the error covariance."""
+        dt = t - self.state.t
+        if not dt > 0.0:
+            raise ValueError(f"IMU time must increase: {t} after {self.state.t}")
+        self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation)
+        phi = np.eye(N_ERR) + self._f_matrix(f_n) * dt
+        self.P = phi @ self.P @ phi.T + self._q(dt)
+        self.P = 0.5 * (self.P + self.P.T)
+        if self.integration == Integration.FEEDFORWARD:
+            self.dx = phi @ self.dx
+
+    def update_position(self, fix: GnssFix) -> bool:
+        """A GNSS position at the state's time (the caller predicts to it first); False when
+        the chi-square gate refuses it."""
+        s = self.state
+        if not (np.all(np.isfinite(fix.sigma_ned_m)) and np.all(fix.sigma_ned_m > 0.0)):
+            raise ValueError(f"GNSS standard deviations must be finite and > 0, "
+                             f"got {fix.sigma_ned_m}")
+        rm, rn = radii_m(s.lat_rad)
+        lever_n = s.c_bn @ self.lever_arm_b_m
+        z = np.array([(s.lat_rad - fix.lat_rad) * (rm + s.h_m),
+                      (s.lon_rad - fix.lon_rad) * (rn + s.h_m) * math.cos(s.lat_rad),
+                      -(s.h_m - fix.h_m)]) + lever_n
+        h = np.zeros((3, N_ERR))
+        h[:, POS] = np.eye(3)
+        h[:, ATT] = -skew(lever_n)
+        r = np.diag(fix.sigma_ned_m**2)
+        y = z - h @ self.dx
+        s_mat = h @ self.P @ h.T + r
+        # the gate allows for model error the fix's own sigma leaves out (an RTK fix says
+        # 1 cm; lever arm, timing and mechanisation are not that good)
+        nis = float(y @ np.linalg.solve(s_mat + GATE_FLOOR_M**2 * np.eye(3), y))
+        if nis > CHI2_3DOF_999 and self.gated < 5:  # after 5 refusals in a row, take it
+            self.gated += 1
+            return False
+        self.gated = 0
+        k = self.P @ h.T @ np.linalg.inv(s_mat)
+        ikh = np.eye(N_ERR) - k @ h
+        self.P = ikh @ self.P @ ikh.T + k @ r @ k.T  # Joseph form
+        self.dx = self.dx + k @ y
+        if self.integration == Integration.FEEDBACK:
+            self._feed_back()
+        return True
+
+    def output(self) -> NavState:
+        """The navigation solution: the state itself (feedback) or the state less the
+        estimated error (feedforward)."""
+        if self.integration == Integration.FEEDBACK:
+            return self.state
+        return _corrected(self.state, self.dx)
+
+    def _feed_back(self) -> None:
+        self.state = _corrected(self.state, self.dx)
+        self.state.gyro_bias_rps = self.state.gyro_bias_rps + self.dx[BG]
+        self.state.accel_bias_mps2 = self.state.accel_bias_mps2 + self.dx[BA]
+        self.dx = np.zeros(N_ERR)
+
+    def _f_matrix(self, f_n: Array) -> Array:
+        s = self.state
+        w_ie, w_en = _rates(s.lat_rad, s.h_m, s.v_ned)
+        tau = self.noise.bias_corr_time_s
+        f = np.zeros((N_ERR, N_ERR))
+        f[POS, VEL] = np.eye(3)
+        f[VEL, ATT] = -skew(f_n)
+        f[VEL, VEL] = -skew(2.0 * w_ie + w_en)
+        f[VEL, BA] = s.c_bn
+        f[ATT, ATT] = -skew(w_ie + w_en)
+        f[ATT, BG] = s.c_bn
+        f[BG, BG] = -np.eye(3) / tau
+        f[BA, BA] = -np.eye(3) / tau
+        return f
+
+    def _q(self, dt: float) -> Array:
+        n = self.noise
+        q = np.zeros(N_ERR)
+        q[VEL] = n.vrw_mps_per_sqrt_s**2
+        q[ATT] = n.arw_rad_per_sqrt_s**2
+        q[BG] = 2.0 * n.gyro_bias_sigma_rps**2 / n.bias_corr_time_s
+        q[BA] = 2.0 * n.accel_bias_sigma_mps2**2 / n.bias_corr_time_s
+        return np.diag(q * dt)
+
+
+def _corrected(s: NavState, dx: Array) -> NavState:
+    """The navigation state less an estimated error (position, velocity, attitude)."""
+    out = s.copy()
+    rm, rn = radii_m(s.lat_rad)
+    out.lat_rad = s.lat_rad - dx[0] / (rm + s.h_m)
+    out.lon_rad = s.lon_rad - dx[1] / ((rn + s.h_m) * math.cos(s.lat_rad))
+    out.h_m = s.h_m + dx[2]
+    out.v_ned = s.v_ned - dx[VEL]
+    out.c_bn = (np.eye(3) - skew(dx[ATT])) @ s.c_bn
+    if not (np.isfinite(out.lat_rad) and np.all(np.isfinite(out.c_bn))):
+        raise FloatingPointError("INS correction produced a non-finite state")
+    return out
+
+
+def replay(ins: InsFilter, imu: Array, fixes: list[GnssFix]) -> Array:
+    """Run IMU rows ``(t, dtheta xyz, dvel xyz)`` and GNSS fixes through the filter; a fix
+    between two IMU samples splits that interval (increments in proportion) so the update
+    happens at the fix's time. Returns ``(n, 7)`` for each IMU epoch's output: t, lat, lon
+    (rad), h (m), roll, pitch, yaw (rad)."""
+    out = []
+    k = 0
+    while k < len(fixes) and fixes[k].t <= ins.state.t:
+        k += 1
+    for row in imu:
+        t = float(row[0])
+        if t <= ins.state.t:
+            continue
+        dtheta, dvel = row[1:4].copy(), row[4:7].copy()
+        while k < len(fixes) and fixes[k].t <= t:
+            fix = fixes[k]
+            frac = (fix.t - ins.state.t) / (t - ins.state.t)
+            if frac > 1e-6:
+                ins.predict(fix.t, dtheta * frac, dvel * frac)
+                dtheta, dvel = dtheta * (1 - frac), dvel * (1 - frac)
+            ins.update_position(fix)
+            k += 1
+        if t - ins.state.t > 1e-9:
+            ins.predict(t, dtheta, dvel)
+        s = ins.output()
+        out.append((s.t, s.lat_rad, s.lon_rad, s.h_m, *dcm_to_euler(s.c_bn)))
+    return np.array(out)
