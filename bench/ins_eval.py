@@ -2,8 +2,9 @@
 
 Data: rtklibexplorer's drive 0708 (consumer IMU at 100 Hz, RTK GNSS at 4 Hz, 549 s) in KF-GINS's
 text formats, and KF-GINS's own results on it (``../shared/peers/rtklibexplorer-drive0708``;
-see its PROVENANCE.md). Same initial state, noise profile and lever arm as KF-GINS's
-``kfgins_profileA.yaml``.
+see its PROVENANCE.md). Our filter starts from KF-GINS's own configuration file
+(``kfgins_profileA.yaml``, read by ``navsvc.wire.kfgins.read_profile``): same initial state,
+noise and lever arm.
 
 - ``dec1hz``: 1 Hz GNSS in; scored on the withheld 4 Hz RTK epochs (horizontal RMS, 95 %, max).
 - ``out0..out2``: 4 Hz GNSS with two 60 s windows removed each; scored by the largest
@@ -28,48 +29,16 @@ from typing import Any
 import numpy as np
 from report import RESULTS, print_table, write_json
 
-from navsvc.fusion.ins import (
-    GnssFix,
-    ImuNoise,
-    InsFilter,
-    Integration,
-    Mechanisation,
-    NavState,
-    euler_to_dcm,
-    radii_m,
-    replay,
-)
-from navsvc.wire.kfgins import read_gnss, read_imu, read_nav
+from navsvc.fusion.ins import Integration, Mechanisation, euler_to_dcm, radii_m, replay
+from navsvc.wire.kfgins import gnss_fixes, read_gnss, read_imu, read_nav, read_profile
 
 DEFAULT_DATA = RESULTS.parent.parent.parent / "shared" / "peers" / "rtklibexplorer-drive0708"
-# kfgins_profileA.yaml
-START_T = 243263.0
-INIT_POS = (40.0966268000, -105.1474484000, 1601.468)
-INIT_ATT_DEG = (-1.1606, -0.0358, -3.0)
-INIT_GYRO_BIAS_DEG_H = np.array([69.62, -245.43, -614.54])
-INIT_ACCEL_BIAS_MGAL = np.array([0.0, 0.0, -13543.1])
-P0_SIGMAS = np.concatenate([[0.05, 0.05, 0.1], [0.05] * 3, np.radians([1.0, 1.0, 5.0]),
-                            np.radians([100.0] * 3) / 3600.0, [3000e-5] * 3])
-NOISE = ImuNoise.from_kfgins(0.6, 0.4, 50.0, 2000.0, 1.0)
-LEVER_M = np.array([0.0, -0.05, 0.0])
 OUTAGES = {"out0": (243400.0, 243580.0), "out1": (243460.0, 243640.0),
            "out2": (243520.0, 243700.0)}
 
 
-def new_filter(integration: Integration, mechanisation: Mechanisation) -> InsFilter:
-    lat, lon, h = INIT_POS
-    state = NavState(START_T, math.radians(lat), math.radians(lon), h, np.zeros(3),
-                     euler_to_dcm(*np.radians(INIT_ATT_DEG)),
-                     np.radians(INIT_GYRO_BIAS_DEG_H) / 3600.0, INIT_ACCEL_BIAS_MGAL * 1e-5)
-    return InsFilter(state, np.diag(P0_SIGMAS**2), NOISE, LEVER_M, integration, mechanisation)
-
-
-def fixes_of(gnss: np.ndarray) -> list[GnssFix]:
-    return [GnssFix(r[0], math.radians(r[1]), math.radians(r[2]), r[3],
-                    np.array([r[4], r[5], r[6]])) for r in gnss]
-
-
-def antenna_errors_m(track: np.ndarray, truth: np.ndarray) -> np.ndarray:
+def antenna_errors_m(track: np.ndarray, truth: np.ndarray,
+                     lever_m: np.ndarray) -> np.ndarray:
     """Horizontal error at each truth epoch. track: t, lat, lon (rad), h, roll, pitch, yaw
     (rad); truth: t, lat, lon (deg)."""
     lat = np.interp(truth[:, 0], track[:, 0], track[:, 1])
@@ -79,7 +48,7 @@ def antenna_errors_m(track: np.ndarray, truth: np.ndarray) -> np.ndarray:
     for i, (t, la, lo) in enumerate(truth[:, :3]):
         rm, rn = radii_m(lat[i])
         k = min(np.searchsorted(track[:, 0], t), len(track) - 1)
-        lever = euler_to_dcm(track[k, 4], track[k, 5], yaw[i]) @ LEVER_M
+        lever = euler_to_dcm(track[k, 4], track[k, 5], yaw[i]) @ lever_m
         dn = (lat[i] - math.radians(la)) * rm + lever[0]
         de = (lon[i] - math.radians(lo)) * rn * math.cos(lat[i]) + lever[1]
         out.append(math.hypot(dn, de))
@@ -97,11 +66,12 @@ def stats(errors: np.ndarray) -> dict[str, float]:
             "p95_m": float(np.percentile(errors, 95)), "max_m": float(errors.max())}
 
 
-def outage_drifts(track: np.ndarray, gnss4: np.ndarray, starts: tuple[float, ...]) -> list[float]:
+def outage_drifts(track: np.ndarray, gnss4: np.ndarray, starts: tuple[float, ...],
+                  lever_m: np.ndarray) -> list[float]:
     drifts = []
     for start in starts:
         inside = gnss4[(gnss4[:, 0] >= start) & (gnss4[:, 0] < start + 60.0)]
-        drifts.append(float(antenna_errors_m(track, inside).max()))
+        drifts.append(float(antenna_errors_m(track, inside, lever_m).max()))
     return drifts
 
 
@@ -110,34 +80,36 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     args = parser.parse_args()
     fmt, anchor = args.data / "kfgins-format", args.data / "kfgins-output"
+    profile = read_profile(anchor / "kfgins_profileA.yaml")
+    lever = np.array(profile.lever_arm_m)
     imu = read_imu(fmt / "imu_kfgins.txt")
     gnss4, gnss1 = read_gnss(fmt / "gnss_4hz.txt"), read_gnss(fmt / "gnss_1hz.txt")
     withheld = gnss4[~np.isin(np.round(gnss4[:, 0], 3), np.round(gnss1[:, 0], 3))
-                     & (gnss4[:, 0] > START_T + 1.0)]
+                     & (gnss4[:, 0] > profile.start_t + 1.0)]
     rows: list[dict[str, Any]] = []
     kf = kfgins_track(read_nav(anchor / "kfgins_A_dec1hz_10hz.nav"))
     rows.append({"filter": "KF-GINS", "mode": "feedback (21 states)", "mechanisation": "",
-                 **stats(antenna_errors_m(kf, withheld)), "us_per_epoch": 21.7})
+                 **stats(antenna_errors_m(kf, withheld, lever)), "us_per_epoch": 21.7})
     for integration in Integration:
         for mech in Mechanisation:
-            ins = new_filter(integration, mech)
+            ins = profile.filter(integration, mech)
             start = time.perf_counter()
-            track = replay(ins, imu, fixes_of(gnss1))
+            track = replay(ins, imu, gnss_fixes(gnss1))
             us = 1e6 * (time.perf_counter() - start) / len(track)
             rows.append({"filter": "navsvc", "mode": integration.value,
                          "mechanisation": mech.value,
-                         **stats(antenna_errors_m(track, withheld)), "us_per_epoch": us})
+                         **stats(antenna_errors_m(track, withheld, lever)),
+                         "us_per_epoch": us})
             print(rows[-1])
     drift_rows = []
     for run, starts in OUTAGES.items():
         kept = gnss4[~np.any([(gnss4[:, 0] >= s) & (gnss4[:, 0] < s + 60.0) for s in starts],
                              axis=0)]
-        ours = replay(new_filter(Integration.FEEDBACK, Mechanisation.FIRST_ORDER), imu,
-                      fixes_of(kept))
+        ours = replay(profile.filter(), imu, gnss_fixes(kept))
         theirs = kfgins_track(read_nav(anchor / f"kfgins_A_{run}_10hz.nav"))
         drift_rows.append({"run": run, "starts": starts,
-                           "navsvc_m": outage_drifts(ours, gnss4, starts),
-                           "kfgins_m": outage_drifts(theirs, gnss4, starts)})
+                           "navsvc_m": outage_drifts(ours, gnss4, starts, lever),
+                           "kfgins_m": outage_drifts(theirs, gnss4, starts, lever)})
         print(drift_rows[-1])
     print_table("drive 0708, 1 Hz GNSS, scored on the withheld 4 Hz RTK epochs (horizontal)",
                 ["filter", "integration", "mechanisation", "RMS m", "95 % m", "max m",

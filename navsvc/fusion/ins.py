@@ -36,6 +36,8 @@ N_ERR = 15
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
 CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
 GATE_FLOOR_M = 0.5
+MAX_RATE_RPS = math.radians(2000.0)  # consumer gyros saturate about here
+MAX_ACCEL_MPS2 = 16.0 * 9.80665
 
 
 class Integration(enum.Enum):
@@ -240,10 +242,19 @@ class InsFilter:
         self.gated = 0
 
     def predict(self, t: float, dtheta: Array, dvel: Array) -> None:
-        """One IMU interval: mechanise, then propagate the error covariance."""
+        """One IMU interval: mechanise, then propagate the error covariance.
+
+        Refused with ValueError, changing nothing: time not increasing, a non-finite sample,
+        or a saturated one (above ``MAX_RATE_RPS`` or ``MAX_ACCEL_MPS2``). A gap in IMU time
+        is integrated as one long step; the covariance grows with it.
+        """
         dt = t - self.state.t
         if not dt > 0.0:
             raise ValueError(f"IMU time must increase: {t} after {self.state.t}")
+        if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(dvel))):
+            raise ValueError(f"IMU sample at t={t} is not finite")
+        if np.abs(dtheta).max() > MAX_RATE_RPS * dt or np.abs(dvel).max() > MAX_ACCEL_MPS2 * dt:
+            raise ValueError(f"IMU sample at t={t} is saturated")
         self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation)
         phi = np.eye(N_ERR) + self._f_matrix(f_n) * dt
         self.P = phi @ self.P @ phi.T + self._q(dt)

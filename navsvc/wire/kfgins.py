@@ -6,29 +6,42 @@
   (m), standard deviations north, east, up (m).
 - Navigation result (``.nav``): 11 columns: week, seconds of week, lat, lon (deg), height (m),
   velocity north, east, down (m/s), roll, pitch, yaw (deg).
+- Configuration (YAML): initial state, its standard deviations, IMU noise, lever arm.
 
-Bad lines raise :class:`TraceError` naming the file and line.
+Files may be gzipped (``.gz``). Bad lines raise :class:`TraceError` naming the file and line.
 """
 
 from __future__ import annotations
 
+import gzip
 import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from navsvc.errors import TraceError
-
-Array = npt.NDArray[np.float64]
+from navsvc.fusion.ins import (
+    Array,
+    GnssFix,
+    ImuNoise,
+    InsFilter,
+    Integration,
+    Mechanisation,
+    NavState,
+    euler_to_dcm,
+)
 
 
 def _read(path: Path, columns: int, what: str) -> Array:
     rows = []
     try:
-        lines = path.read_text().splitlines()
-    except OSError as exc:
-        raise TraceError(f"{path}: cannot read: {exc.strerror}") from exc
+        raw = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+        lines = raw.decode().splitlines()
+    except (OSError, EOFError, UnicodeDecodeError) as exc:
+        raise TraceError(f"{path}: cannot read: {getattr(exc, 'strerror', None) or exc}") \
+            from exc
     for number, line in enumerate(lines, start=1):
         parts = line.split()
         if not parts or parts[0].startswith("#"):
@@ -69,3 +82,89 @@ def read_gnss(path: Path) -> Array:
 def read_nav(path: Path) -> Array:
     """``(n, 11)``: week, t, lat, lon (deg), h (m), v north east down, roll pitch yaw (deg)."""
     return _read(path, 11, "navigation")
+
+
+@dataclass(frozen=True)
+class KfGinsProfile:
+    """The parts of a KF-GINS YAML configuration our filter uses (its units)."""
+
+    start_t: float
+    init_pos: tuple[float, float, float]  # lat, lon (deg), h (m)
+    init_vel: tuple[float, float, float]  # north, east, down (m/s)
+    init_att_deg: tuple[float, float, float]  # roll, pitch, yaw
+    init_gyro_bias_deg_h: tuple[float, float, float]
+    init_accel_bias_mgal: tuple[float, float, float]
+    pos_std_m: tuple[float, float, float]
+    vel_std_mps: tuple[float, float, float]
+    att_std_deg: tuple[float, float, float]
+    gyro_bias_std_deg_h: tuple[float, float, float]
+    accel_bias_std_mgal: tuple[float, float, float]
+    noise: ImuNoise
+    lever_arm_m: tuple[float, float, float]
+
+    def filter(self, integration: Integration = Integration.FEEDBACK,
+               mechanisation: Mechanisation = Mechanisation.FIRST_ORDER) -> InsFilter:
+        """An InsFilter started as KF-GINS starts with this profile."""
+        lat, lon, h = self.init_pos
+        state = NavState(self.start_t, math.radians(lat), math.radians(lon), h,
+                         np.array(self.init_vel), euler_to_dcm(*np.radians(self.init_att_deg)),
+                         np.radians(self.init_gyro_bias_deg_h) / 3600.0,
+                         np.array(self.init_accel_bias_mgal) * 1e-5)
+        sigmas = np.concatenate([self.pos_std_m, self.vel_std_mps,
+                                 np.radians(self.att_std_deg),
+                                 np.radians(self.gyro_bias_std_deg_h) / 3600.0,
+                                 np.array(self.accel_bias_std_mgal) * 1e-5])
+        return InsFilter(state, np.diag(sigmas**2), self.noise, np.array(self.lever_arm_m),
+                         integration, mechanisation)
+
+
+def read_profile(path: Path) -> KfGinsProfile:
+    """A KF-GINS configuration file (its flat YAML: ``key: value``, ``key: [a, b, c]``, and the
+    ``imunoise:`` block). Scale-factor settings are read past: our filter has no such states."""
+    values: dict[str, Any] = {}
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise TraceError(f"{path}: cannot read: {exc.strerror}") from exc
+    for number, line in enumerate(lines, start=1):
+        text = line.split("#", 1)[0].rstrip()
+        if not text.strip() or text.strip().endswith(":"):
+            continue
+        key, sep, value = text.strip().partition(":")
+        if not sep:
+            raise TraceError(f"{path}:{number}: expected 'key: value'")
+        value = value.strip().strip('"')
+        try:
+            values[key] = [float(v) for v in value.strip("[]").split(",")] \
+                if value.startswith("[") else value
+        except ValueError:
+            raise TraceError(f"{path}:{number}: {key}: not a list of numbers") from None
+    try:
+        noise = ImuNoise.from_kfgins(values["arw"][0], values["vrw"][0], values["gbstd"][0],
+                                     values["abstd"][0], float(values["corrtime"]))
+        return KfGinsProfile(
+            start_t=float(values["starttime"]), init_pos=_xyz(values["initpos"]),
+            init_vel=_xyz(values["initvel"]), init_att_deg=_xyz(values["initatt"]),
+            init_gyro_bias_deg_h=_xyz(values["initgyrbias"]),
+            init_accel_bias_mgal=_xyz(values["initaccbias"]),
+            pos_std_m=_xyz(values["initposstd"]), vel_std_mps=_xyz(values["initvelstd"]),
+            att_std_deg=_xyz(values["initattstd"]),
+            gyro_bias_std_deg_h=_xyz(values["initbgstd"]),
+            accel_bias_std_mgal=_xyz(values["initbastd"]), noise=noise,
+            lever_arm_m=_xyz(values.get("antlever", [0.0, 0.0, 0.0])))
+    except KeyError as exc:
+        raise TraceError(f"{path}: missing setting {exc.args[0]!r}") from None
+    except (TypeError, ValueError, IndexError) as exc:
+        raise TraceError(f"{path}: bad setting: {exc}") from None
+
+
+def _xyz(values: Any) -> tuple[float, float, float]:
+    if not isinstance(values, list) or len(values) != 3:
+        raise ValueError(f"expected three numbers, got {values!r}")
+    return float(values[0]), float(values[1]), float(values[2])
+
+
+def gnss_fixes(rows: Array) -> list[GnssFix]:
+    """GNSS rows of :func:`read_gnss` as filter fixes (radians; sigmas north, east, down)."""
+    return [GnssFix(float(r[0]), math.radians(r[1]), math.radians(r[2]), float(r[3]),
+                    np.array([r[4], r[5], r[6]])) for r in rows]
