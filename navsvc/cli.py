@@ -197,7 +197,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     graph = RoadGraph.open(args.map)
     spec = DriveSpec(duration_s=args.duration, seed=args.seed, outages=tuple(args.outage),
-                     sensors=SENSOR_KINDS[args.sensors])
+                     sensors=SENSOR_KINDS[args.sensors], full_imu=args.sensors == "strapdown")
     records = simulate_drive(graph, spec)
     count = write_records(args.output, records)
     kinds = Counter(r["kind"] for r in records)

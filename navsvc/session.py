@@ -22,9 +22,17 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from navsvc.errors import LimitExceeded, PacketError, Rejection, RejectReason, SessionNotFound
+from navsvc.errors import (
+    ConfigError,
+    LimitExceeded,
+    PacketError,
+    Rejection,
+    RejectReason,
+    SessionNotFound,
+)
 from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
 from navsvc.fusion.motion import SensorConfig, road_constraint
+from navsvc.fusion.strapdown import StrapdownEngine
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
 from navsvc.triplog import LoggedSession, TripLog
 from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState
@@ -67,7 +75,14 @@ class VehicleSession:
                  graph: RoadGraph | None = None) -> None:
         self.config = config
         self.graph = graph
-        self.engine = FusionEngine(config.fusion, frame=graph.frame if graph else None)
+        frame = graph.frame if graph else None
+        self.engine: FusionEngine | StrapdownEngine
+        if config.fusion.sensors == SensorConfig.STRAPDOWN:
+            if config.map_feedback:
+                raise ConfigError("map feedback is not available with strapdown yet")
+            self.engine = StrapdownEngine(config.fusion, frame=frame)
+        else:
+            self.engine = FusionEngine(config.fusion, frame=frame)
         self.matcher = OnlineMatcher(graph, config.matcher) if graph is not None else None
         self.last_position: MatchedPosition | None = None
         self._last_match_t: float | None = None
@@ -115,7 +130,7 @@ class VehicleSession:
     def _step_matcher(self) -> None:
         """Between outputs, step the matcher every ``match_interval_s`` so that it sees each
         short edge and intersection on the way."""
-        t = self.engine.state.t
+        t = self.engine.t
         if self.matcher is None or t is None or (
                 self._last_match_t is not None
                 and t - self._last_match_t < self.config.match_interval_s):
@@ -147,7 +162,7 @@ class VehicleSession:
             return
         if self._last_feedback_t is not None and e.t - self._last_feedback_t < 1.0:
             return
-        assert self.graph is not None
+        assert self.graph is not None and isinstance(self.engine, FusionEngine)
         bearing = self.graph.project(EdgeKey(p.edge.u, p.edge.v, p.edge.key), e.x_m,
                                      e.y_m).bearing_rad
         if abs(wrap_angle_rad(e.heading_rad - bearing)) > math.radians(20.0):

@@ -64,6 +64,30 @@ _FIX_SIGMA_M = {GpsFixType.RTK: 0.05, GpsFixType.DGPS: 1.0, GpsFixType.FIX_3D: 4
                 GpsFixType.FIX_2D: 8.0}
 
 
+def gps_problem(fix: GpsFix, cfg: FusionConfig) -> str | None:
+    """Why a fix is bad (thesis validity rules), or None when it is good."""
+    if not fix.status_ok:
+        return "receiver status bad"
+    if fix.fix == GpsFixType.NONE:
+        return "no fix"
+    if fix.sats is not None and fix.sats < cfg.min_sats:
+        return f"{fix.sats} satellites (< {cfg.min_sats})"
+    if fix.hdop is not None and fix.hdop > cfg.max_hdop:
+        return f"HDOP {fix.hdop:g} (> {cfg.max_hdop:g})"
+    return None
+
+
+def gps_sigma_m(fix: GpsFix, cfg: FusionConfig) -> float:
+    """1-σ horizontal error of a fix: its own accuracy, else HDOP × UERE, else by fix type."""
+    if fix.accuracy_m is not None and fix.accuracy_m > 0.0:
+        return fix.accuracy_m
+    if fix.hdop is not None and fix.hdop > 0.0:
+        return fix.hdop * cfg.gps_uere_m
+    if fix.fix in _FIX_SIGMA_M:
+        return _FIX_SIGMA_M[fix.fix]
+    return cfg.gps_default_sigma_m
+
+
 @dataclass(frozen=True)
 class FusionConfig:
     """Fusion parameters; every field may be overridden per session."""
@@ -107,6 +131,8 @@ class FusionConfig:
                 raise ConfigError(f"{name} must be a finite number > 0, got {value}")
         if self.sensors == SensorConfig.GPS_ONLY and self.process.turn_rate_tau_s is None:
             object.__setattr__(self, "process", replace(self.process, turn_rate_tau_s=3.0))
+        if self.sensors == SensorConfig.STRAPDOWN and self.gps_mode != GpsMode.EKF:
+            raise ConfigError("strapdown fuses GPS in its error-state EKF: fusion must be ekf")
         if self.sensors == SensorConfig.GPS_ONLY and self.gps_mode != GpsMode.EKF:
             raise ConfigError("gps_only needs gps_mode ekf: the rules and fuzzy modes blend GPS "
                               "into dead reckoning, and gps_only has none")
@@ -146,6 +172,11 @@ class FusionEngine:
         self._history: deque[tuple[Packet, FusionState]] = deque()
 
     # --- public --------------------------------------------------------------------------
+    @property
+    def t(self) -> float | None:
+        """Time of the filter's state (the latest packet applied)."""
+        return self.state.t
+
     def add(self, packet: Packet) -> list[FusedEstimate]:
         """Apply one packet in time order; return the estimates it emitted (GPS epochs, ticks).
 
@@ -317,29 +348,6 @@ class FusionEngine:
         self.state.t = packet.t if self.state.t is None else max(self.state.t, packet.t)
 
     # --- GPS -----------------------------------------------------------------------------
-    def _gps_ok(self, fix: GpsFix) -> str | None:
-        """Why a fix is bad (thesis validity rules), or None when it is good."""
-        cfg = self.config
-        if not fix.status_ok:
-            return "receiver status bad"
-        if fix.fix == GpsFixType.NONE:
-            return "no fix"
-        if fix.sats is not None and fix.sats < cfg.min_sats:
-            return f"{fix.sats} satellites (< {cfg.min_sats})"
-        if fix.hdop is not None and fix.hdop > cfg.max_hdop:
-            return f"HDOP {fix.hdop:g} (> {cfg.max_hdop:g})"
-        return None
-
-    def _gps_sigma_m(self, fix: GpsFix) -> float:
-        cfg = self.config
-        if fix.accuracy_m is not None and fix.accuracy_m > 0.0:
-            return fix.accuracy_m
-        if fix.hdop is not None and fix.hdop > 0.0:
-            return fix.hdop * cfg.gps_uere_m
-        if fix.fix in _FIX_SIGMA_M:
-            return _FIX_SIGMA_M[fix.fix]
-        return cfg.gps_default_sigma_m
-
     def _local(self, fix: GpsFix) -> tuple[float, float]:
         if self.frame is None:
             self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
@@ -347,7 +355,7 @@ class FusionEngine:
 
     def _try_initialize(self, fix: GpsFix) -> None:
         s, cfg = self.state, self.config
-        bad = self._gps_ok(fix)
+        bad = gps_problem(fix, self.config)
         s.t = fix.t if s.t is None else max(s.t, fix.t)
         if bad is not None:
             s.gps = GpsUsage(False, 0.0, bad)
@@ -376,7 +384,7 @@ class FusionEngine:
     def _reset_from_gps(self, fix: GpsFix, east: float, north: float, heading: float | None,
                         speed: float | None) -> None:
         s, cfg = self.state, self.config
-        sigma = self._gps_sigma_m(fix)
+        sigma = gps_sigma_m(fix, self.config)
         s.x[X_M], s.x[Y_M] = east, north
         s.P[[X_M, Y_M], :] = 0.0
         s.P[:, [X_M, Y_M]] = 0.0
@@ -400,7 +408,7 @@ class FusionEngine:
         s = self.state
         dt = fix.t - s.last_gps_t if s.last_gps_t is not None else 1.0
         s.last_gps_t = fix.t
-        bad = self._gps_ok(fix)
+        bad = gps_problem(fix, self.config)
         if bad is not None:
             s.gps = GpsUsage(False, 0.0, bad)
             return
@@ -412,7 +420,7 @@ class FusionEngine:
     def _fuse_gps_ekf(self, fix: GpsFix) -> None:
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        sigma = self._gps_sigma_m(fix)
+        sigma = gps_sigma_m(fix, self.config)
         nis = self._update(motion.gps_position(s.x, east, north, sigma), gate_dof=2)
         if nis is None:
             s.gated_fixes += 1
@@ -484,7 +492,7 @@ class FusionEngine:
             self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
             s.gps = GpsUsage(True, 1.0, d.reason)
             return
-        sigma = self._gps_sigma_m(fix)
+        sigma = gps_sigma_m(fix, self.config)
         z, h, H, R = motion.gps_position(s.x, east, north, sigma)
         s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, d.position_weight * H.T)
         heading = self._gps_heading(fix)

@@ -15,7 +15,9 @@ as angle and velocity increments over each sample interval.
 - Integrations: ``feedback`` (default; each correction goes into the navigation state and the
   biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
   open loop; the output is that solution less the estimated error, which keeps propagating).
-- GNSS position updates with lever arm and a chi-square gate.
+- GNSS position updates with lever arm and a chi-square gate, GNSS velocity; body-frame
+  velocity updates for
+  wheel speed, the non-holonomic constraint (no sideways or vertical motion) and stops.
 """
 
 from __future__ import annotations
@@ -39,7 +41,9 @@ EARTH_RATE_RPS = 7.2921151467e-5
 N_ERR = 15
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
 CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
+CHI2_6DOF_999 = 22.46
 GATE_FLOOR_M = 0.5
+GATED_BEFORE_SOFT = 3
 MAX_RATE_RPS = math.radians(2000.0)  # consumer gyros saturate about here
 MAX_ACCEL_MPS2 = 16.0 * 9.80665
 
@@ -308,17 +312,78 @@ class InsFilter:
         # the gate allows for model error the fix's own sigma leaves out (an RTK fix says
         # 1 cm; lever arm, timing and mechanisation are not that good)
         nis = float(y @ np.linalg.solve(s_mat + GATE_FLOOR_M**2 * np.eye(3), y))
-        if nis > CHI2_3DOF_999 and self.gated < 5:  # after 5 refusals in a row, take it
+        if nis > CHI2_3DOF_999:
             self.gated += 1
+            if self.gated < GATED_BEFORE_SOFT:
+                return False
+            # refused often in a row: the INS may be the one that is wrong; take the fix with
+            # its noise inflated to the gate, so one outlier cannot drag the solution far
+            r = r * (nis / CHI2_3DOF_999)
+            s_mat = h @ self.P @ h.T + r
+        else:
+            self.gated = 0
+        self._apply(h, y, r, s_mat)
+        return True
+
+    def update_body_velocity(self, z_b: Array, rows: tuple[int, ...], sigma_mps: Array) -> bool:
+        """Measured components (``rows`` of x fwd, y right, z down) of the velocity in the
+        body frame: wheel speed (x), the non-holonomic constraint (y = z = 0), or a stop
+        (all three 0). False when the gate refuses it."""
+        s = self.state
+        c_nb = s.c_bn.T
+        v_b = c_nb @ s.v_ned
+        h_full = np.zeros((3, N_ERR))
+        h_full[:, VEL] = c_nb
+        h_full[:, ATT] = c_nb @ skew(s.v_ned)
+        idx = list(rows)
+        h = h_full[idx]
+        y = (v_b - z_b)[idx] - h @ self.dx
+        r = np.diag(np.asarray(sigma_mps, dtype=np.float64)[idx] ** 2)
+        s_mat = h @ self.P @ h.T + r
+        if float(y @ np.linalg.solve(s_mat, y)) > CHI2_3DOF_999:
             return False
-        self.gated = 0
+        self._apply(h, y, r, s_mat)
+        return True
+
+    def update_velocity(self, v_ned: Array, rows: tuple[int, ...], sigma_mps: float) -> bool:
+        """GNSS velocity (the ``rows`` of north, east, down that were measured)."""
+        idx = list(rows)
+        h = np.zeros((len(idx), N_ERR))
+        h[:, VEL] = np.eye(3)[idx]
+        y = (self.state.v_ned - v_ned)[idx] - h @ self.dx
+        r = np.eye(len(idx)) * sigma_mps**2
+        s_mat = h @ self.P @ h.T + r
+        if float(y @ np.linalg.solve(s_mat, y)) > CHI2_3DOF_999:
+            return False
+        self._apply(h, y, r, s_mat)
+        return True
+
+    def update_rest(self, gyro_rps: Array, gyro_sigma_rps: float,
+                    velocity_sigma_mps: float) -> bool:
+        """The vehicle stands still: zero velocity, and the gyro reads its bias plus the
+        earth's rate (zero-velocity and zero-angular-rate updates). False when gated."""
+        s = self.state
+        w_ie_b = s.c_bn.T @ (EARTH_RATE_RPS * np.array(
+            [math.cos(s.lat_rad), 0.0, -math.sin(s.lat_rad)]))
+        h = np.zeros((6, N_ERR))
+        h[0:3, VEL] = np.eye(3)
+        h[3:6, BG] = np.eye(3)  # the residual rate is the bias error (true - estimate)
+        y = np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - w_ie_b]) - h @ self.dx
+        r = np.diag([velocity_sigma_mps**2] * 3 + [gyro_sigma_rps**2] * 3)
+        s_mat = h @ self.P @ h.T + r
+        if float(y @ np.linalg.solve(s_mat, y)) > CHI2_6DOF_999:
+            return False
+        self._apply(h, y, r, s_mat)
+        return True
+
+    def _apply(self, h: Array, y: Array, r: Array, s_mat: Array) -> None:
+        """The Kalman update (Joseph form), then the feedback of the error if so integrated."""
         k = self.P @ h.T @ np.linalg.inv(s_mat)
         ikh = np.eye(N_ERR) - k @ h
-        self.P = ikh @ self.P @ ikh.T + k @ r @ k.T  # Joseph form
+        self.P = ikh @ self.P @ ikh.T + k @ r @ k.T
         self.dx = self.dx + k @ y
         if self.integration == Integration.FEEDBACK:
             self._feed_back()
-        return True
 
     def output(self) -> NavState:
         """The navigation solution: the state itself (feedback) or the state less the

@@ -43,6 +43,7 @@ class SensorConfig(enum.Enum):
     GYRO_ACCEL = "gyro_accel"  # config 3: speed from the forward accelerometer
     GYRO_TWO_ACCELS = "gyro_two_accels"  # config 4: plus lateral acceleration
     GPS_ONLY = "gps_only"  # constant turn rate and velocity, GPS alone
+    STRAPDOWN = "strapdown"  # full 6-axis IMU: the strapdown INS (fusion/strapdown.py)
 
     @property
     def speed_from_accel(self) -> bool:

@@ -41,6 +41,8 @@ SENSOR_KINDS: dict[str, tuple[str, ...]] = {
     "gyro_accel": ("imu", "gps"),
     "gyro_two_accels": ("imu", "gps"),
     "gps_only": ("gps",),
+    "strapdown": ("imu", "odometer", "gps"),  # 6-axis fields (DriveSpec.full_imu); odometer
+    # optional
 }  # the packet kinds a vehicle of each sensor configuration sends
 
 
@@ -67,6 +69,9 @@ class SensorErrors:
     gps_heading_sigma_deg: float = 2.0
 
 
+STANDARD_GRAVITY_MPS2 = 9.80665
+
+
 @dataclass(frozen=True)
 class DriveSpec:
     """What to simulate."""
@@ -81,6 +86,7 @@ class DriveSpec:
     outages: tuple[tuple[float, float], ...] = ()  # (start_s, length_s)
     tunnels_block_gps: bool = True
     sensors: tuple[str, ...] = ("imu", "odometer", "steering", "gps")
+    full_imu: bool = False  # imu packets also carry 6-axis gyro_dps and accel_mps2 (flat road)
     stop_probability: float = 0.2  # at each intersection
     stop_duration_s: tuple[float, float] = (3.0, 15.0)
     max_lateral_accel_mps2: float = 2.0
@@ -332,9 +338,14 @@ def _imu_records(truth: _Truth, spec: DriveSpec, rng: np.random.Generator) -> li
     accel_bias = rng.normal(0.0, e.accel_bias_mps2)
     fwd = truth.accel + accel_bias + rng.normal(0.0, e.accel_noise_mps2, n)
     left = -truth.speed * truth.rate + rng.normal(0.0, e.accel_noise_mps2, n)
-    return [{"t": round(float(truth.t[i]), 4), "kind": "imu",
-             "yaw_rate_dps": float(yaw_left_dps[i]), "accel_fwd_mps2": float(fwd[i]),
-             "accel_left_mps2": float(left[i])} for i in range(n)]
+    out: list[dict[str, Any]] = [
+        {"t": round(float(truth.t[i]), 4), "kind": "imu", "yaw_rate_dps": float(yaw_left_dps[i]),
+         "accel_fwd_mps2": float(fwd[i]), "accel_left_mps2": float(left[i])} for i in range(n)]
+    if spec.full_imu:  # the same readings as a 6-axis IMU on a level road (x fwd, y left, z up)
+        for r in out:
+            r["gyro_dps"] = [0.0, 0.0, r["yaw_rate_dps"]]
+            r["accel_mps2"] = [r["accel_fwd_mps2"], r["accel_left_mps2"], STANDARD_GRAVITY_MPS2]
+    return out
 
 
 def _odometer_records(truth: _Truth, spec: DriveSpec,

@@ -150,3 +150,16 @@ def test_fix_far_outside_the_map_is_refused(client: httpx.Client) -> None:
     (rejected,) = r.json()["rejected"]
     assert rejected["code"] == "out_of_range"
     assert "is outside the map 'monaco'" in rejected["message"]
+
+
+def test_strapdown_session_takes_6_axis_imu(client: httpx.Client) -> None:
+    s = new_session(client, sensors="strapdown")
+    imu = {"t": 0.01, "kind": "imu", "gyro_dps": [0.0, 0.0, 1.0], "accel_mps2": [0.1, 0.0, 9.8]}
+    r = client.post(f"/sessions/{s['id']}/packets",
+                    json=[GPS, imu, {"t": 0.02, "kind": "imu", "yaw_rate_dps": 1.0}])
+    body = r.json()
+    assert body["accepted"] == 2
+    assert [(x["index"], x["code"]) for x in body["rejected"]] == [(2, "missing_field")]
+    r = client.post("/sessions", json={"vehicle_id": "x", "sensors": "strapdown",
+                                       "map_feedback": True})
+    assert r.status_code == 422 and "map feedback" in r.json()["error"]["message"]

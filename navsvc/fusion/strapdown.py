@@ -1,0 +1,288 @@
+"""The strapdown INS as a session's fusion engine: the ``strapdown`` sensor configuration.
+
+Vehicles with a full 6-axis IMU send ``imu`` packets with ``gyro_dps`` and ``accel_mps2`` (body
+x forward, y left, z up on the wire) and GPS fixes; this engine turns them into the same
+:class:`FusedEstimate` stream as :class:`navsvc.fusion.engine.FusionEngine`, so sessions, the
+matcher and the API use it unchanged.
+
+Wheel speed (``odometer`` packets), the non-holonomic constraint and, while the vehicle stands
+still, zero velocity and zero angular rate are extra measurements: they are what holds a road
+vehicle through GPS outages.
+
+Alignment: roll and pitch from the mean specific force while the vehicle stands still (coarse
+levelling; level is assumed if it never stood still), heading from the GPS course once it moves
+faster than ``align_min_speed_mps``. Until then no estimate is produced. IMU rates are held
+over each sample interval (rectangular increments); the IMU mounting rotation is an option.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from navsvc.errors import ConfigError, PacketError, RejectReason
+from navsvc.fusion.engine import FusionConfig, gps_problem, gps_sigma_m
+from navsvc.fusion.ins import (
+    Array,
+    GnssFix,
+    ImuNoise,
+    InsFilter,
+    Integration,
+    Mechanisation,
+    NavState,
+    dcm_to_euler,
+    euler_to_dcm,
+    level_from_accel,
+)
+from navsvc.fusion.motion import SensorConfig
+from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
+from roadgraph import LocalFrame
+
+FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
+NO_HEIGHT_SIGMA_M = 50.0
+ODO_SCALE_GAIN = 0.05
+
+
+@dataclass(frozen=True)
+class StrapdownOptions:
+    """What a strapdown session may set beside the common fusion settings."""
+
+    # automotive MEMS: ARW 0.6 deg/sqrt(h), VRW 0.4 m/s/sqrt(h); biases wander about
+    # 1000 deg/h and 5000 mGal over an hour (a tactical-grade unit is 20-50x steadier)
+    noise: ImuNoise = ImuNoise.from_kfgins(0.6, 0.4, 1000.0, 5000.0, 1.0)
+    integration: Integration = Integration.FEEDBACK
+    mechanisation: Mechanisation = Mechanisation.FIRST_ORDER
+    mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU axes in the body
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # GPS antenna, body FRD
+    nhc: bool = True  # apply the non-holonomic constraint
+    nhc_rate_hz: float = 10.0
+    nhc_sigma_mps: float = 0.1
+    rest_gyro_sigma_rps: float = math.radians(0.1)
+    align_min_speed_mps: float = 3.0
+    still_speed_mps: float = 0.3
+    level_window: int = 100  # IMU samples averaged for levelling
+    initial_sigmas: tuple[float, ...] = (  # position m, velocity m/s, roll/pitch/yaw rad,
+        5.0, 0.5, math.radians(2.0), math.radians(10.0),  # gyro bias rad/s, accel bias m/s²
+        math.radians(0.5), 0.1)
+
+
+DEFAULT_CONFIG = FusionConfig(sensors=SensorConfig.STRAPDOWN)
+DEFAULT_OPTIONS = StrapdownOptions()
+
+
+class StrapdownEngine:
+    """One vehicle's strapdown INS with GPS, behind the FusionEngine interface."""
+
+    def __init__(self, config: FusionConfig = DEFAULT_CONFIG,
+                 frame: LocalFrame | None = None,
+                 options: StrapdownOptions = DEFAULT_OPTIONS) -> None:
+        if options.align_min_speed_mps <= 0.0:
+            raise ConfigError("align_min_speed_mps must be > 0")
+        self.config = config
+        self.frame = frame
+        self.options = options
+        self.ins: InsFilter | None = None
+        self._mount = euler_to_dcm(*np.radians(options.mounting_rpy_deg)) @ FLU_TO_FRD
+        self._still_f: deque[Array] = deque(maxlen=options.level_window)
+        self._rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
+        self._t: float | None = None
+        self._last_output_t: float | None = None
+        self._standing = True
+        self._gps: GpsUsage | None = None
+        self._height_m = 0.0
+        self._last_nhc_t: float | None = None
+        self._odo_window: tuple[float, float] | None = None  # (t, cumulative distance)
+        self._odo_speed: float | None = None  # latest raw wheel speed
+        self._odo_scale = 1.0
+
+    @property
+    def t(self) -> float | None:
+        """Time of the latest packet applied."""
+        return self._t
+
+    def add(self, packet: Packet) -> list[FusedEstimate]:
+        """Apply one packet in time order; return the estimates it produced."""
+        if self._t is not None and packet.t < self._t:
+            raise PacketError(RejectReason.TIME_BACKWARDS,
+                              f"t={packet.t} is before the latest packet t={self._t}")
+        if isinstance(packet, ImuSample):
+            return self._imu(packet)
+        if isinstance(packet, GpsFix):
+            return self._gps_fix(packet)
+        if isinstance(packet, OdometerSample):
+            self._odometer(packet)
+            return []
+        raise PacketError(RejectReason.NOT_CONFIGURED,
+                          f"{type(packet).__name__} is not used by the strapdown configuration")
+
+    def estimate(self) -> FusedEstimate | None:
+        return None if self.ins is None else self._estimate()
+
+    # --- packets -------------------------------------------------------------------------
+    def _imu(self, p: ImuSample) -> list[FusedEstimate]:
+        if p.gyro_rps is None or p.accel_mps2 is None:
+            raise PacketError(RejectReason.MISSING_FIELD,
+                              "strapdown needs the full 6-axis imu: gyro_dps and accel_mps2")
+        gyro = self._mount @ np.array(p.gyro_rps)
+        accel = self._mount @ np.array(p.accel_mps2)
+        if self.ins is not None and self._rates is not None and self._t is not None \
+                and p.t > self.ins.state.t:
+            self._predict_to(p.t)
+            self._constrain(p.t)
+        elif self._standing:
+            self._still_f.append(accel)
+        self._rates, self._t = (gyro, accel), p.t
+        if self.ins is not None and self._last_output_t is not None and \
+                p.t - self._last_output_t >= self.config.output_interval_s:
+            self._last_output_t = p.t
+            return [self._estimate()]
+        return []
+
+    def _predict_to(self, t: float) -> None:
+        assert self.ins is not None and self._rates is not None
+        dt = t - self.ins.state.t
+        try:
+            self.ins.predict(t, self._rates[0] * dt, self._rates[1] * dt)
+        except ValueError as exc:  # saturated or non-finite sample: hold, report
+            raise PacketError(RejectReason.OUT_OF_RANGE, str(exc)) from None
+
+    def _constrain(self, t: float) -> None:
+        """The non-holonomic constraint: a road vehicle does not slide sideways or leave the
+        road surface (body y and z velocity zero), applied at ``nhc_rate_hz``."""
+        o = self.options
+        assert self.ins is not None and self._rates is not None
+        if not o.nhc or (self._last_nhc_t is not None and
+                         t - self._last_nhc_t < 1.0 / o.nhc_rate_hz):
+            return
+        self._last_nhc_t = t
+        v = self.ins.state.v_ned
+        if self._standing and math.hypot(v[0], v[1]) < o.still_speed_mps * 2.0:
+            # standing (GPS says so and the INS agrees): zero velocity and rate calibrate
+            # the gyro while heading cannot be seen
+            self.ins.update_rest(self._rates[0], o.rest_gyro_sigma_rps, o.nhc_sigma_mps)
+        else:
+            self.ins.update_body_velocity(np.zeros(3), (1, 2), np.full(3, o.nhc_sigma_mps))
+
+    def _odometer(self, p: OdometerSample) -> None:
+        """Wheel speed along the body x axis (a stop: the whole velocity is zero)."""
+        speed = p.speed_mps
+        distance = p.distance_m if p.distance_m is not None else (
+            None if p.ticks is None else p.ticks / self.config.ticks_per_m)
+        if speed is None and distance is not None:
+            if self._odo_window is None or p.t - self._odo_window[0] <= 0.0:
+                self._odo_window = (p.t, distance)
+                return
+            if p.t - self._odo_window[0] < self.config.odometer_window_s:
+                return
+            speed = (distance - self._odo_window[1]) / (p.t - self._odo_window[0])
+            self._odo_window = (p.t, distance)
+        self._t = p.t
+        if speed is None:
+            return
+        self._odo_speed = speed
+        speed *= self._odo_scale
+        if self.ins is None:
+            return
+        if p.t > self.ins.state.t and self._rates is not None:
+            self._predict_to(p.t)
+        sigma = np.full(3, self.config.odometer_sigma_mps)
+        if speed < 0.05:
+            self.ins.update_body_velocity(np.zeros(3), (0, 1, 2), sigma)
+        else:
+            self.ins.update_body_velocity(np.array([speed, 0.0, 0.0]), (0,), sigma)
+
+    def _gps_velocity(self, fix: GpsFix) -> None:
+        """Speed and course as a horizontal velocity: standing (speed under
+        ``still_speed_mps``) or moving fast enough for the course to mean something."""
+        assert self.ins is not None
+        cfg = self.config
+        if fix.speed_mps is None:
+            return
+        if fix.speed_mps < self.options.still_speed_mps:
+            v = np.zeros(3)
+        elif fix.heading_rad is not None and fix.speed_mps >= cfg.min_speed_for_gps_heading_mps:
+            v = fix.speed_mps * np.array([math.cos(fix.heading_rad), math.sin(fix.heading_rad),
+                                          0.0])
+        else:
+            return
+        self.ins.update_velocity(v, (0, 1), cfg.gps_velocity_sigma_mps)
+
+    def _calibrate_odometer(self, fix: GpsFix) -> None:
+        """Wheel-speed scale from GPS speed at good speeds (a running average): tyre size and
+        wear make it a few percent off, which the filter would otherwise read as motion."""
+        if fix.speed_mps is None or self._odo_speed is None or fix.speed_mps < 5.0 or \
+                self._odo_speed < 5.0:
+            return
+        ratio = fix.speed_mps / self._odo_speed
+        if 0.8 < ratio < 1.2:
+            self._odo_scale += ODO_SCALE_GAIN * (ratio - self._odo_scale)
+
+    def _gps_fix(self, fix: GpsFix) -> list[FusedEstimate]:
+        self._t = fix.t
+        bad = gps_problem(fix, self.config)
+        if bad is not None:
+            self._gps = GpsUsage(False, 0.0, bad)
+            return [self._estimate()] if self.ins is not None else []
+        if self.frame is None:
+            self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
+        if fix.speed_mps is not None:
+            self._standing = fix.speed_mps < self.options.still_speed_mps
+        if self.ins is None:
+            self._try_align(fix)
+            return [self._estimate()] if self.ins is not None else []
+        if fix.t > self.ins.state.t and self._rates is not None:
+            self._predict_to(fix.t)
+        self._calibrate_odometer(fix)
+        sigma = gps_sigma_m(fix, self.config)
+        if fix.alt_m is not None:
+            self._height_m = fix.alt_m
+        # without a GPS height, the last one known (loosely) keeps the vertical channel bounded
+        h_sigma = 2.0 * sigma if fix.alt_m is not None else NO_HEIGHT_SIGMA_M
+        used = self.ins.update_position(GnssFix(
+            fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg), self._height_m,
+            np.array([sigma, sigma, h_sigma])))
+        self._gps_velocity(fix)
+        self._gps = GpsUsage(True, 1.0, "accepted") if used else \
+            GpsUsage(False, 0.0, "gated: innovation too large")
+        self._last_output_t = fix.t
+        return [self._estimate()]
+
+    def _try_align(self, fix: GpsFix) -> None:
+        """Start the INS once the GPS course gives a heading."""
+        o = self.options
+        if fix.speed_mps is None or fix.heading_rad is None or \
+                fix.speed_mps < o.align_min_speed_mps:
+            self._gps = GpsUsage(False, 0.0, "aligning: waiting to move for a heading")
+            return
+        roll, pitch = level_from_accel(np.mean(self._still_f, axis=0)) if self._still_f \
+            else (0.0, 0.0)
+        yaw = fix.heading_rad
+        sigma = gps_sigma_m(fix, self.config)
+        s = o.initial_sigmas
+        p0 = np.diag(np.array([max(s[0], sigma)] * 2 + [2.0 * max(s[0], sigma)] + [s[1]] * 3
+                              + [s[2], s[2], s[3]] + [s[4]] * 3 + [s[5]] * 3) ** 2)
+        self._height_m = fix.alt_m if fix.alt_m is not None else 0.0
+        state = NavState(fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg),
+                         self._height_m,
+                         fix.speed_mps * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
+                         euler_to_dcm(roll, pitch, yaw))
+        self.ins = InsFilter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
+                             o.mechanisation)
+        self._last_output_t = fix.t
+        self._gps = GpsUsage(True, 1.0, "aligned: level from the IMU, heading from GPS")
+
+    def _estimate(self) -> FusedEstimate:
+        assert self.ins is not None and self.frame is not None
+        s = self.ins.output()
+        x, y = self.frame.to_local(math.degrees(s.lon_rad), math.degrees(s.lat_rad))
+        p = self.ins.P
+        cov = np.array([[p[1, 1], p[1, 0]], [p[0, 1], p[0, 0]]])  # (east, north) = (x, y)
+        yaw_rate = 0.0 if self._rates is None else float(
+            (s.c_bn @ (self._rates[0] - s.gyro_bias_rps))[2])
+        return FusedEstimate(t=s.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(s.c_bn)[2],
+                             speed_mps=float(math.hypot(s.v_ned[0], s.v_ned[1])),
+                             yaw_rate_rps=yaw_rate, position_cov_m2=cov,
+                             heading_sigma_rad=float(math.sqrt(p[8, 8])), gps=self._gps)

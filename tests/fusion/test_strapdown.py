@@ -1,0 +1,50 @@
+"""The strapdown sensor configuration through VehicleSession, on simulated 6-axis drives."""
+
+from __future__ import annotations
+
+import pytest
+
+from navsvc.errors import ConfigError
+from navsvc.session import VehicleSession, config_from_options
+from navsvc.sim.evaluate import evaluate
+from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+from navsvc.wire.positions import position_json
+from roadgraph import RoadGraph
+
+
+@pytest.fixture(scope="module")
+def drive(sample_graph: RoadGraph) -> list[dict]:
+    return simulate_drive(sample_graph, DriveSpec(duration_s=300.0, seed=2, full_imu=True,
+                                                  outages=((150.0, 30.0),),
+                                                  tunnels_block_gps=False))
+
+
+@pytest.mark.parametrize("with_odometer", [False, True])
+def test_strapdown_session_follows_the_drive_through_an_outage(
+        drive: list[dict], sample_graph: RoadGraph, with_odometer: bool) -> None:
+    kinds = set(SENSOR_KINDS["strapdown"]) - (set() if with_odometer else {"odometer"})
+    packets = [r for r in drive if r["kind"] in kinds]
+    session = VehicleSession(config_from_options({"sensors": "strapdown"}), sample_graph)
+    result = session.add_records(packets)
+    assert not result.rejections
+    out = [position_json(p, sample_graph.frame) for p in result.positions]
+    e = evaluate(drive, out)
+    assert e.fused.rms_m < 1.2 * e.raw_gps.rms_m
+    assert e.on_right_road_share >= 0.9
+    (outage,) = [o for o in e.outages if o.start_s <= 151.0 <= o.end_s]
+    assert outage.drift_pct < 5.0  # the non-holonomic constraint holds it
+
+
+def test_strapdown_needs_the_6_axis_imu(sample_graph: RoadGraph) -> None:
+    session = VehicleSession(config_from_options({"sensors": "strapdown"}), sample_graph)
+    result = session.add_records([{"t": 0.0, "kind": "imu", "yaw_rate_dps": 1.0},
+                                  {"t": 0.1, "kind": "steering", "angle_deg": 1.0}])
+    assert [(r.index, r.reason.code) for r in result.rejections] == [
+        (0, "missing_field"), (1, "not_configured")]
+
+
+def test_strapdown_refuses_what_it_cannot_do() -> None:
+    with pytest.raises(ConfigError, match="fusion must be ekf"):
+        config_from_options({"sensors": "strapdown", "fusion": "rules"})
+    with pytest.raises(ConfigError, match="map feedback is not available"):
+        VehicleSession(config_from_options({"sensors": "strapdown", "map_feedback": True}))
