@@ -29,15 +29,18 @@ from roadgraph import RoadGraph
 OUTAGE = (300.0, 60.0)
 
 
+EKF_ONLY = (SensorConfig.GPS_ONLY, SensorConfig.STRAPDOWN)
+
+
 def _one_drive(job: tuple[str, int, float, bool]) -> list[dict[str, Any]]:
     map_path, seed, duration, tunnels = job
     graph = RoadGraph.open(map_path)
     spec = DriveSpec(duration_s=duration, seed=seed, outages=(OUTAGE,),
-                     tunnels_block_gps=tunnels)
+                     tunnels_block_gps=tunnels, full_imu=True)
     drive = simulate_drive(graph, spec)
     rows = []
     combos = [(s, m) for s, m in product(SensorConfig, GpsMode)
-              if s != SensorConfig.GPS_ONLY or m == GpsMode.EKF] if not tunnels else \
+              if s not in EKF_ONLY or m == GpsMode.EKF] if not tunnels else \
         [(SensorConfig.GYRO_ODOMETER, GpsMode.EKF)]
     for sensors, mode in combos:
         kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
