@@ -1,10 +1,11 @@
 """The comma2k19 example segment (real car, 60 s) as our wire records, with its truth.
 
 Sensors: the phone gyro (104 Hz, forward/right/down: our yaw rate, z up, is minus the down
-axis), CAN vehicle speed (89 Hz, odometer ``speed_mps``), CAN steering-wheel angle (89 Hz,
-positive left; the front-wheel angle is it over the steering ratio) and the u-blox fix
-(10 Hz). Truth is ``global_pose`` (20 Hz, ECEF). All of them carry the device boot time, so
-they align without the UTC conversion; ``t`` is seconds since the first record.
+axis) and, when present, its accelerometer (both then also as the 6-axis fields), CAN vehicle
+speed (89 Hz, odometer ``speed_mps``), CAN steering-wheel angle (89 Hz, positive left; the
+front-wheel angle is it over the steering ratio) and the u-blox fix (10 Hz). Truth is
+``global_pose`` (20 Hz, ECEF). All of them carry the device boot time, so they align without
+the UTC conversion; ``t`` is seconds since the first record.
 
 The vehicle constants are openpilot's for the Toyota RAV4 (steering ratio 16.88, wheelbase
 2.65 m).
@@ -77,14 +78,29 @@ def _gnss(folder: Path, t0: float, gnss: Gnss) -> list[dict[str, Any]]:
     return out
 
 
+def _add_full_imu(folder: Path, gyro_t: np.ndarray, gyro: np.ndarray,
+                  imu: list[dict[str, Any]]) -> None:
+    """The 6-axis fields (``strapdown``): the phone's forward-right-down axes turned to the
+    wire's forward-left-up, the accelerometer interpolated to the gyro's times."""
+    acc_t = _load(folder, "processed_log/IMU/accelerometer/t")
+    acc = _load(folder, "processed_log/IMU/accelerometer/value")
+    acc_at = np.column_stack([np.interp(gyro_t, acc_t, acc[:, k]) for k in range(3)])
+    for record, g, a in zip(imu, np.degrees(gyro), acc_at):
+        record["gyro_dps"] = [float(g[0]), -float(g[1]), -float(g[2])]
+        record["accel_mps2"] = [float(a[0]), -float(a[1]), -float(a[2])]
+
+
 def read_segment(folder: Path, gnss: Gnss = Gnss()) -> list[dict[str, Any]]:
     """Wire records (truth, gps, imu, odometer, steering) in time order."""
     gyro_t = _load(folder, "processed_log/IMU/gyro/t")
     t0 = float(min(gyro_t[0], _load(folder, "global_pose/frame_times")[0]))
     gyro = _load(folder, "processed_log/IMU/gyro/value")
     records = _truth(folder, t0) + _gnss(folder, t0, gnss)
-    records += [{"t": round(float(t - t0), 4), "kind": "imu",
-                 "yaw_rate_dps": -math.degrees(float(g[2]))} for t, g in zip(gyro_t, gyro)]
+    imu = [{"t": round(float(t - t0), 4), "kind": "imu",
+            "yaw_rate_dps": -math.degrees(float(g[2]))} for t, g in zip(gyro_t, gyro)]
+    if (folder / "processed_log/IMU/accelerometer").is_dir():
+        _add_full_imu(folder, gyro_t, gyro, imu)
+    records += imu
     speed_t = _load(folder, "processed_log/CAN/speed/t")
     speed = _load(folder, "processed_log/CAN/speed/value").ravel()
     records += [{"t": round(float(t - t0), 4), "kind": "odometer",
