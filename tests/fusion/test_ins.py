@@ -118,6 +118,10 @@ def test_covariance_stays_symmetric_positive_definite(steps: list, integration: 
             rm, rn = radii_m(LAT)
             ins.update_position(GnssFix(t, LAT + north / rm, east / (rn * math.cos(LAT)),
                                         100.0, np.array([sigma, sigma, 2 * sigma])))
+            ins.update_velocity(np.array([north, east, 0.0]) / 10.0, (0, 1), 0.5)
+            ins.update_body_velocity(np.array([abs(east), 0.0, 0.0]), (0, 1, 2),
+                                     np.full(3, 0.2))
+            ins.update_rest(np.array(rate), 0.01, 0.1)
         assert np.allclose(ins.P, ins.P.T)
         assert np.linalg.eigvalsh(ins.P).min() > 0.0
         assert math.isfinite(ins.output().lat_rad)
