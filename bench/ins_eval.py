@@ -11,8 +11,9 @@ noise and lever arm.
   horizontal error inside each window (the drift of a 60 s outage).
 
 Every integration (feedback, feedforward) and mechanisation (first order, RK4) runs on
-``dec1hz``; feedback with first order runs the outages. Positions are compared at the GNSS
-antenna (lever arm applied to both filters' attitude).
+``dec1hz``, and feedback with first order on a flat earth too; feedback with first order runs
+the outages. Positions are compared at the GNSS antenna (lever arm applied to both filters'
+attitude).
 
     python bench/ins_eval.py [--data ../shared/peers/rtklibexplorer-drive0708]
 """
@@ -29,7 +30,14 @@ from typing import Any
 import numpy as np
 from report import RESULTS, print_table, write_json
 
-from navsvc.fusion.ins import Integration, Mechanisation, euler_to_dcm, radii_m, replay
+from navsvc.fusion.ins import (
+    EarthModel,
+    Integration,
+    Mechanisation,
+    euler_to_dcm,
+    radii_m,
+    replay,
+)
 from navsvc.wire.kfgins import gnss_fixes, read_gnss, read_imu, read_nav, read_profile
 
 DEFAULT_DATA = RESULTS.parent.parent.parent / "shared" / "peers" / "rtklibexplorer-drive0708"
@@ -90,17 +98,17 @@ def main() -> None:
     kf = kfgins_track(read_nav(anchor / "kfgins_A_dec1hz_10hz.nav"))
     rows.append({"filter": "KF-GINS", "mode": "feedback (21 states)", "mechanisation": "",
                  **stats(antenna_errors_m(kf, withheld, lever)), "us_per_epoch": 21.7})
-    for integration in Integration:
-        for mech in Mechanisation:
-            ins = profile.filter(integration, mech)
-            start = time.perf_counter()
-            track = replay(ins, imu, gnss_fixes(gnss1))
-            us = 1e6 * (time.perf_counter() - start) / len(track)
-            rows.append({"filter": "navsvc", "mode": integration.value,
-                         "mechanisation": mech.value,
-                         **stats(antenna_errors_m(track, withheld, lever)),
-                         "us_per_epoch": us})
-            print(rows[-1])
+    variants = [(i, m, EarthModel.WGS84) for i in Integration for m in Mechanisation]
+    variants.append((Integration.FEEDBACK, Mechanisation.FIRST_ORDER, EarthModel.FLAT))
+    for integration, mech, earth in variants:
+        ins = profile.filter(integration, mech, earth)
+        start = time.perf_counter()
+        track = replay(ins, imu, gnss_fixes(gnss1))
+        us = 1e6 * (time.perf_counter() - start) / len(track)
+        rows.append({"filter": "navsvc", "mode": integration.value,
+                     "mechanisation": f"{mech.value}, {earth.value} earth",
+                     **stats(antenna_errors_m(track, withheld, lever)), "us_per_epoch": us})
+        print(rows[-1])
     drift_rows = []
     for run, starts in OUTAGES.items():
         kept = gnss4[~np.any([(gnss4[:, 0] >= s) & (gnss4[:, 0] < s + 60.0) for s in starts],

@@ -31,8 +31,9 @@ from navsvc.errors import (
     SessionNotFound,
 )
 from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
+from navsvc.fusion.ins import Integration, Mechanisation
 from navsvc.fusion.motion import SensorConfig, road_constraint
-from navsvc.fusion.strapdown import StrapdownEngine
+from navsvc.fusion.strapdown import StrapdownEngine, StrapdownOptions
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
 from navsvc.triplog import LoggedSession, TripLog
 from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState
@@ -52,6 +53,7 @@ class SessionConfig:
 
     fusion: FusionConfig = FusionConfig()
     matcher: MatcherConfig = MatcherConfig()
+    strapdown: StrapdownOptions = StrapdownOptions()  # the INS, for sensors "strapdown"
     map_feedback: bool = False  # matched road → pseudo-measurement into the filter
     match_interval_s: float = 0.1  # the matcher also steps between outputs (short edges)
     feedback_sigma_across_m: float = 2.0
@@ -80,7 +82,7 @@ class VehicleSession:
         if config.fusion.sensors == SensorConfig.STRAPDOWN:
             if config.map_feedback:
                 raise ConfigError("map feedback is not available with strapdown yet")
-            self.engine = StrapdownEngine(config.fusion, frame=frame)
+            self.engine = StrapdownEngine(config.fusion, frame=frame, options=config.strapdown)
         else:
             self.engine = FusionEngine(config.fusion, frame=frame)
         self.matcher = OnlineMatcher(graph, config.matcher) if graph is not None else None
@@ -176,8 +178,10 @@ class VehicleSession:
 def config_from_options(options: dict[str, Any]) -> SessionConfig:
     """A session's configuration from the options it was created with (API and trip log).
 
-    Keys: ``sensors``, ``fusion`` (GPS mode), ``map_feedback``, and the optional vehicle
-    constants ``ticks_per_m``, ``wheelbase_m``, ``gps_uere_m``. Raises ConfigError.
+    Keys: ``sensors``, ``fusion`` (GPS mode), ``map_feedback``, the optional vehicle
+    constants ``ticks_per_m``, ``wheelbase_m``, ``gps_uere_m``, and for ``strapdown``
+    ``ins_integration``, ``ins_mechanisation``, ``imu_mounting_rpy_deg``,
+    ``gps_lever_arm_m``. Raises ConfigError.
     """
     defaults = FusionConfig()
     fusion = FusionConfig(
@@ -186,7 +190,20 @@ def config_from_options(options: dict[str, Any]) -> SessionConfig:
         ticks_per_m=float(options.get("ticks_per_m", defaults.ticks_per_m)),
         wheelbase_m=float(options.get("wheelbase_m", defaults.wheelbase_m)),
         gps_uere_m=float(options.get("gps_uere_m", defaults.gps_uere_m)))
-    return SessionConfig(fusion=fusion, map_feedback=bool(options.get("map_feedback", False)))
+    base = StrapdownOptions()
+    strapdown = StrapdownOptions(
+        integration=Integration(options.get("ins_integration", base.integration.value)),
+        mechanisation=Mechanisation(options.get("ins_mechanisation",
+                                                base.mechanisation.value)),
+        mounting_rpy_deg=_triple(options.get("imu_mounting_rpy_deg", base.mounting_rpy_deg)),
+        lever_arm_m=_triple(options.get("gps_lever_arm_m", base.lever_arm_m)))
+    return SessionConfig(fusion=fusion, strapdown=strapdown,
+                         map_feedback=bool(options.get("map_feedback", False)))
+
+
+def _triple(values: Any) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in values)
+    return x, y, z
 
 
 def owner_of(api_key: str | None) -> str:

@@ -11,6 +11,7 @@ from typing import Any, Literal, Self
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from navsvc.fusion.engine import GpsMode
+from navsvc.fusion.ins import Integration, Mechanisation
 from navsvc.fusion.motion import SensorConfig
 
 
@@ -29,6 +30,15 @@ class SessionCreate(BaseModel):
     wheelbase_m: float | None = Field(None, gt=0.5, le=20, description="for steering sensors")
     gps_uere_m: float | None = Field(None, gt=0, le=100,
                                      description="GPS error per unit of HDOP, metres")
+    ins_integration: Integration | None = Field(
+        None, description="strapdown: feedback (default) or feedforward")
+    ins_mechanisation: Mechanisation | None = Field(
+        None, description="strapdown: first_order (default) or rk4")
+    imu_mounting_rpy_deg: tuple[float, float, float] | None = Field(
+        None, description="strapdown: roll, pitch, yaw of the IMU axes in the vehicle, "
+                          "degrees")
+    gps_lever_arm_m: tuple[float, float, float] | None = Field(
+        None, description="strapdown: GPS antenna from the IMU, forward/right/down, metres")
 
     def options(self) -> dict[str, Any]:
         return self.model_dump(mode="json", exclude={"vehicle_id"}, exclude_none=True)

@@ -6,9 +6,10 @@ forward-right-down, attitude as the direction-cosine matrix ``C_bn`` (body to na
 position as geodetic latitude/longitude (radians) and ellipsoidal height (m) on WGS84, IMU input
 as angle and velocity increments over each sample interval.
 
-- Mechanisation: earth rate, transport rate and normal gravity; ``first_order`` (rotation-vector
-  attitude update, mid-point position) or the paper's ``rk4`` on the continuous equations with
-  the rates held over the step.
+- Mechanisation: earth rate, transport rate and normal gravity (``EarthModel.WGS84``) or a
+  flat, non-rotating earth (``FLAT``); ``first_order`` (rotation-vector attitude update,
+  mid-point position) or the paper's ``rk4`` on the continuous equations with the rates held
+  over the step.
 - Error state (15): position error (NED, m), velocity error (NED, m/s), attitude error ψ (rad;
   estimated attitude = (I + [ψ×]) true), gyro bias (rad/s), accelerometer bias (m/s²), the
   biases as first-order Gauss–Markov processes.
@@ -51,6 +52,11 @@ MAX_ACCEL_MPS2 = 16.0 * 9.80665
 class Integration(enum.Enum):
     FEEDBACK = "feedback"
     FEEDFORWARD = "feedforward"
+
+
+class EarthModel(enum.Enum):
+    WGS84 = "wgs84"  # earth rate and transport rate
+    FLAT = "flat"  # neither (the paper found no significant difference)
 
 
 class Mechanisation(enum.Enum):
@@ -137,20 +143,22 @@ class NavState:
 
 
 @jit
-def _rates(lat: float, h: float, v: Array) -> tuple[Array, Array]:
-    """Earth rate and transport rate in the navigation frame."""
+def _rates(lat: float, h: float, v: Array, rotating: float) -> tuple[Array, Array]:
+    """Earth rate and transport rate in the navigation frame (both zero on a flat earth:
+    ``rotating`` 0)."""
     rm, rn = radii_m(lat)
-    w_ie = EARTH_RATE_RPS * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-    w_en = np.array([v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)])
+    w_ie = rotating * EARTH_RATE_RPS * np.array([math.cos(lat), 0.0, -math.sin(lat)])
+    w_en = rotating * np.array([v[1] / (rn + h), -v[0] / (rm + h),
+                                -v[1] * math.tan(lat) / (rn + h)])
     return w_ie, w_en
 
 
 @jit
-def _derivatives(lat: float, h: float, v: Array, c: Array, w_ib: Array,
-                 f_b: Array) -> tuple[Array, Array, Array]:
+def _derivatives(lat: float, h: float, v: Array, c: Array, w_ib: Array, f_b: Array,
+                 rotating: float) -> tuple[Array, Array, Array]:
     """d(lat, lon, h)/dt, dv/dt, dC/dt of the continuous strapdown equations."""
     rm, rn = radii_m(lat)
-    w_ie, w_en = _rates(lat, h, v)
+    w_ie, w_en = _rates(lat, h, v, rotating)
     g = np.array([0.0, 0.0, normal_gravity_mps2(lat, h)])
     dpos = np.array([v[0] / (rm + h), v[1] / ((rn + h) * math.cos(lat)), -v[2]])
     dv = c @ f_b + g - np.cross(2.0 * w_ie + w_en, v)
@@ -159,25 +167,28 @@ def _derivatives(lat: float, h: float, v: Array, c: Array, w_ib: Array,
 
 
 def mechanise(s: NavState, t: float, dtheta: Array, dvel: Array,
-              method: Mechanisation = Mechanisation.FIRST_ORDER) -> tuple[NavState, Array]:
+              method: Mechanisation = Mechanisation.FIRST_ORDER,
+              earth: EarthModel = EarthModel.WGS84) -> tuple[NavState, Array]:
     """Advance the navigation state by one IMU interval; return it and the specific force in
     the navigation frame (for the error model). Biases are removed from the increments."""
+    rotating = 1.0 if earth == EarthModel.WGS84 else 0.0
     dt = t - s.t
     dtheta = dtheta - s.gyro_bias_rps * dt
     dvel = dvel - s.accel_bias_mps2 * dt
     out = s.copy()
     out.t = t
     if method == Mechanisation.RK4:
-        return _rk4(s, out, dt, dtheta, dvel)
+        return _rk4(s, out, dt, dtheta, dvel, rotating)
     out.lat_rad, out.lon_rad, out.h_m, out.v_ned, out.c_bn, f_n = _first_order(
-        s.lat_rad, s.lon_rad, s.h_m, s.v_ned, s.c_bn, dtheta, dvel, dt)
+        s.lat_rad, s.lon_rad, s.h_m, s.v_ned, s.c_bn, dtheta, dvel, dt, rotating)
     return out, f_n
 
 
 @jit
 def _first_order(lat: float, lon: float, h: float, v: Array, c: Array, dtheta: Array,
-                 dvel: Array, dt: float) -> tuple[float, float, float, Array, Array, Array]:
-    w_ie, w_en = _rates(lat, h, v)
+                 dvel: Array, dt: float,
+                 rotating: float) -> tuple[float, float, float, Array, Array, Array]:
+    w_ie, w_en = _rates(lat, h, v, rotating)
     dv_b = dvel + 0.5 * np.cross(dtheta, dvel)  # rotation compensation
     dv_n = c @ dv_b
     g = np.array([0.0, 0.0, normal_gravity_mps2(lat, h)])
@@ -192,25 +203,25 @@ def _first_order(lat: float, lon: float, h: float, v: Array, c: Array, dtheta: A
     return lat_new, lon_new, h_new, v_new, c_new, dv_n / dt
 
 
-def _rk4(s: NavState, out: NavState, dt: float, dtheta: Array,
-         dvel: Array) -> tuple[NavState, Array]:
+def _rk4(s: NavState, out: NavState, dt: float, dtheta: Array, dvel: Array,
+         rotating: float) -> tuple[NavState, Array]:
     pos, out.v_ned, out.c_bn = _rk4_kernel(np.array([s.lat_rad, s.lon_rad, s.h_m]), s.v_ned,
-                                           s.c_bn, dtheta / dt, dvel / dt, dt)
+                                           s.c_bn, dtheta / dt, dvel / dt, dt, rotating)
     out.lat_rad, out.lon_rad, out.h_m = float(pos[0]), float(pos[1]), float(pos[2])
     return out, s.c_bn @ (dvel / dt)
 
 
 @jit
-def _rk4_kernel(pos: Array, v: Array, c: Array, w_ib: Array, f_b: Array,
-                dt: float) -> tuple[Array, Array, Array]:
+def _rk4_kernel(pos: Array, v: Array, c: Array, w_ib: Array, f_b: Array, dt: float,
+                rotating: float) -> tuple[Array, Array, Array]:
     """The paper's 4th-order Runge–Kutta step, the body rates held over the interval."""
-    p1, v1, c1 = _derivatives(pos[0], pos[2], v, c, w_ib, f_b)
+    p1, v1, c1 = _derivatives(pos[0], pos[2], v, c, w_ib, f_b, rotating)
     p2, v2, c2 = _derivatives(pos[0] + dt / 2 * p1[0], pos[2] + dt / 2 * p1[2],
-                              v + dt / 2 * v1, c + dt / 2 * c1, w_ib, f_b)
+                              v + dt / 2 * v1, c + dt / 2 * c1, w_ib, f_b, rotating)
     p3, v3, c3 = _derivatives(pos[0] + dt / 2 * p2[0], pos[2] + dt / 2 * p2[2],
-                              v + dt / 2 * v2, c + dt / 2 * c2, w_ib, f_b)
+                              v + dt / 2 * v2, c + dt / 2 * c2, w_ib, f_b, rotating)
     p4, v4, c4 = _derivatives(pos[0] + dt * p3[0], pos[2] + dt * p3[2],
-                              v + dt * v3, c + dt * c3, w_ib, f_b)
+                              v + dt * v3, c + dt * c3, w_ib, f_b, rotating)
     pos_new = pos + dt / 6.0 * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
     v_new = v + dt / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
     c_new = c + dt / 6.0 * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
@@ -253,7 +264,8 @@ class InsFilter:
     def __init__(self, state: NavState, p0: Array, noise: ImuNoise,
                  lever_arm_b_m: Array | None = None,
                  integration: Integration = Integration.FEEDBACK,
-                 mechanisation: Mechanisation = Mechanisation.FIRST_ORDER) -> None:
+                 mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
+                 earth: EarthModel = EarthModel.WGS84) -> None:
         self.state = state  # the inertial solution (open loop in feedforward mode)
         self.P = p0.copy()
         self.dx = np.zeros(N_ERR)  # estimated error (stays zero in feedback mode)
@@ -261,6 +273,8 @@ class InsFilter:
         self.lever_arm_b_m = np.zeros(3) if lever_arm_b_m is None else lever_arm_b_m
         self.integration = integration
         self.mechanisation = mechanisation
+        self.earth = earth
+        self._rotating = 1.0 if earth == EarthModel.WGS84 else 0.0
         self.gated = 0
         q = np.zeros(N_ERR)  # continuous white-noise densities of the error states
         q[VEL] = noise.vrw_mps_per_sqrt_s**2
@@ -283,10 +297,10 @@ class InsFilter:
             raise ValueError(f"IMU sample at t={t} is not finite")
         if np.abs(dtheta).max() > MAX_RATE_RPS * dt or np.abs(dvel).max() > MAX_ACCEL_MPS2 * dt:
             raise ValueError(f"IMU sample at t={t} is saturated")
-        self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation)
+        self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation, self.earth)
         s = self.state
         phi = _transition(s.lat_rad, s.h_m, s.v_ned, s.c_bn, f_n, dt,
-                          self.noise.bias_corr_time_s)
+                          self.noise.bias_corr_time_s, self._rotating)
         self.P = _propagate(self.P, phi, self._q_density * dt)
         if self.integration == Integration.FEEDFORWARD:
             self.dx = phi @ self.dx
@@ -363,7 +377,7 @@ class InsFilter:
         """The vehicle stands still: zero velocity, and the gyro reads its bias plus the
         earth's rate (zero-velocity and zero-angular-rate updates). False when gated."""
         s = self.state
-        w_ie_b = s.c_bn.T @ (EARTH_RATE_RPS * np.array(
+        w_ie_b = s.c_bn.T @ (self._rotating * EARTH_RATE_RPS * np.array(
             [math.cos(s.lat_rad), 0.0, -math.sin(s.lat_rad)]))
         h = np.zeros((6, N_ERR))
         h[0:3, VEL] = np.eye(3)
@@ -402,9 +416,9 @@ class InsFilter:
 
 @jit
 def _transition(lat: float, h: float, v: Array, c: Array, f_n: Array, dt: float,
-                tau: float) -> Array:
+                tau: float, rotating: float) -> Array:
     """Φ = I + F dt of the ψ-angle error model with Gauss–Markov biases."""
-    w_ie, w_en = _rates(lat, h, v)
+    w_ie, w_en = _rates(lat, h, v, rotating)
     f = np.zeros((N_ERR, N_ERR))
     f[0:3, 3:6] = np.eye(3)
     f[3:6, 6:9] = -skew(f_n)

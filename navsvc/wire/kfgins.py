@@ -24,6 +24,7 @@ import numpy as np
 from navsvc.errors import TraceError
 from navsvc.fusion.ins import (
     Array,
+    EarthModel,
     GnssFix,
     ImuNoise,
     InsFilter,
@@ -103,7 +104,8 @@ class KfGinsProfile:
     lever_arm_m: tuple[float, float, float]
 
     def filter(self, integration: Integration = Integration.FEEDBACK,
-               mechanisation: Mechanisation = Mechanisation.FIRST_ORDER) -> InsFilter:
+               mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
+               earth: EarthModel = EarthModel.WGS84) -> InsFilter:
         """An InsFilter started as KF-GINS starts with this profile."""
         lat, lon, h = self.init_pos
         state = NavState(self.start_t, math.radians(lat), math.radians(lon), h,
@@ -115,7 +117,7 @@ class KfGinsProfile:
                                  np.radians(self.gyro_bias_std_deg_h) / 3600.0,
                                  np.array(self.accel_bias_std_mgal) * 1e-5])
         return InsFilter(state, np.diag(sigmas**2), self.noise, np.array(self.lever_arm_m),
-                         integration, mechanisation)
+                         integration, mechanisation, earth)
 
 
 def read_profile(path: Path) -> KfGinsProfile:

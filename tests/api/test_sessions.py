@@ -153,7 +153,10 @@ def test_fix_far_outside_the_map_is_refused(client: httpx.Client) -> None:
 
 
 def test_strapdown_session_takes_6_axis_imu(client: httpx.Client) -> None:
-    s = new_session(client, sensors="strapdown")
+    s = new_session(client, sensors="strapdown", ins_integration="feedforward",
+                    ins_mechanisation="rk4", imu_mounting_rpy_deg=[180.0, 0.0, 0.0],
+                    gps_lever_arm_m=[0.5, 0.0, -1.2])
+    assert s["options"]["ins_mechanisation"] == "rk4"
     imu = {"t": 0.01, "kind": "imu", "gyro_dps": [0.0, 0.0, 1.0], "accel_mps2": [0.1, 0.0, 9.8]}
     r = client.post(f"/sessions/{s['id']}/packets",
                     json=[GPS, imu, {"t": 0.02, "kind": "imu", "yaw_rate_dps": 1.0}])
