@@ -453,12 +453,15 @@ def _corrected(s: NavState, dx: Array) -> NavState:
     return out
 
 
-def replay(ins: InsFilter, imu: Array, fixes: list[GnssFix]) -> Array:
+def replay(ins: InsFilter, imu: Array, fixes: list[GnssFix],
+           nhc_sigma_mps: float | None = None) -> Array:
     """Run IMU rows ``(t, dtheta xyz, dvel xyz)`` and GNSS fixes through the filter; a fix
     between two IMU samples splits that interval (increments in proportion) so the update
-    happens at the fix's time. Returns ``(n, 7)`` for each IMU epoch's output: t, lat, lon
-    (rad), h (m), roll, pitch, yaw (rad)."""
+    happens at the fix's time. With ``nhc_sigma_mps`` the non-holonomic constraint is applied
+    at 10 Hz while moving faster than 2 m/s. Returns ``(n, 7)`` for each IMU epoch's output:
+    t, lat, lon (rad), h (m), roll, pitch, yaw (rad)."""
     out = []
+    last_nhc = -math.inf
     k = 0
     while k < len(fixes) and fixes[k].t <= ins.state.t:
         k += 1
@@ -477,6 +480,10 @@ def replay(ins: InsFilter, imu: Array, fixes: list[GnssFix]) -> Array:
             k += 1
         if t - ins.state.t > 1e-9:
             ins.predict(t, dtheta, dvel)
+        if nhc_sigma_mps is not None and t - last_nhc >= 0.1 and \
+                math.hypot(ins.state.v_ned[0], ins.state.v_ned[1]) > 2.0:
+            ins.update_body_velocity(np.zeros(3), (1, 2), np.full(3, nhc_sigma_mps))
+            last_nhc = t
         s = ins.output()
         out.append((s.t, s.lat_rad, s.lon_rad, s.h_m, *dcm_to_euler(s.c_bn)))
     return np.array(out)
