@@ -166,6 +166,9 @@ class FusionEngine:
 
     def __init__(self, config: FusionConfig = FusionConfig(),
                  frame: LocalFrame | None = None) -> None:
+        if config.sensors == SensorConfig.STRAPDOWN:
+            raise ConfigError("the strapdown configuration runs in StrapdownEngine "
+                              "(navsvc.fusion.strapdown)")
         self.config = config
         self.frame = frame
         self.state = FusionState()

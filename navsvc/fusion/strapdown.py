@@ -26,6 +26,8 @@ import numpy as np
 from navsvc.errors import ConfigError, PacketError, RejectReason
 from navsvc.fusion.engine import FusionConfig, gps_problem, gps_sigma_m
 from navsvc.fusion.ins import (
+    MAX_ACCEL_MPS2,
+    MAX_RATE_RPS,
     Array,
     GnssFix,
     ImuNoise,
@@ -128,6 +130,10 @@ class StrapdownEngine:
                               "strapdown needs the full 6-axis imu: gyro_dps and accel_mps2")
         gyro = self._mount @ np.array(p.gyro_rps)
         accel = self._mount @ np.array(p.accel_mps2)
+        if np.abs(gyro).max() > MAX_RATE_RPS or np.abs(accel).max() > MAX_ACCEL_MPS2:
+            raise PacketError(RejectReason.OUT_OF_RANGE,
+                              f"imu sample saturated (|gyro| <= {math.degrees(MAX_RATE_RPS):g} "
+                              f"deg/s, |accel| <= {MAX_ACCEL_MPS2:g} m/s^2)")
         if self.ins is not None and self._rates is not None and self._t is not None \
                 and p.t > self.ins.state.t:
             self._predict_to(p.t)
@@ -168,6 +174,8 @@ class StrapdownEngine:
 
     def _odometer(self, p: OdometerSample) -> None:
         """Wheel speed along the body x axis (a stop: the whole velocity is zero)."""
+        if self.ins is not None and p.t > self.ins.state.t and self._rates is not None:
+            self._predict_to(p.t)
         speed = p.speed_mps
         distance = p.distance_m if p.distance_m is not None else (
             None if p.ticks is None else p.ticks / self.config.ticks_per_m)
@@ -186,8 +194,6 @@ class StrapdownEngine:
         speed *= self._odo_scale
         if self.ins is None:
             return
-        if p.t > self.ins.state.t and self._rates is not None:
-            self._predict_to(p.t)
         sigma = np.full(3, self.config.odometer_sigma_mps)
         if speed < 0.05:
             self.ins.update_body_velocity(np.zeros(3), (0, 1, 2), sigma)
@@ -221,6 +227,8 @@ class StrapdownEngine:
             self._odo_scale += ODO_SCALE_GAIN * (ratio - self._odo_scale)
 
     def _gps_fix(self, fix: GpsFix) -> list[FusedEstimate]:
+        if self.ins is not None and fix.t > self.ins.state.t and self._rates is not None:
+            self._predict_to(fix.t)  # first: it may refuse, and then nothing has changed
         self._t = fix.t
         bad = gps_problem(fix, self.config)
         if bad is not None:
@@ -233,8 +241,6 @@ class StrapdownEngine:
         if self.ins is None:
             self._try_align(fix)
             return [self._estimate()] if self.ins is not None else []
-        if fix.t > self.ins.state.t and self._rates is not None:
-            self._predict_to(fix.t)
         self._calibrate_odometer(fix)
         sigma = gps_sigma_m(fix, self.config)
         if fix.alt_m is not None:

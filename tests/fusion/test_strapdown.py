@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError
+from navsvc.fusion.strapdown import StrapdownEngine
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
@@ -69,3 +73,29 @@ def test_imu_mounted_sideways_is_turned_back(drive: list[dict], sample_graph: Ro
         rms[mounting[2]] = e.fused.rms_m
     raw = evaluate(drive, []).raw_gps.rms_m
     assert rms[90.0] < 1.2 * raw < rms[0.0]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.fixed_dictionaries(
+    {"t": st.floats(0.0, 30.0), "kind": st.sampled_from(["imu", "gps", "odometer"])},
+    optional={"gyro_dps": st.lists(st.floats(-3000, 3000), min_size=3, max_size=3),
+              "accel_mps2": st.lists(st.floats(-200, 200), min_size=3, max_size=3),
+              "lat": st.floats(43.72, 43.75), "lon": st.floats(7.40, 7.44),
+              "speed_mps": st.floats(0, 40), "heading_deg": st.floats(0, 359),
+              "distance_m": st.floats(0, 1000)}), max_size=80))
+def test_random_streams_never_break_the_strapdown_engine(stream: list[dict]) -> None:
+    """A rejected packet changes nothing; the covariance stays symmetric and positive."""
+    session = VehicleSession(config_from_options({"sensors": "strapdown"}))
+    engine = session.engine
+    assert isinstance(engine, StrapdownEngine)
+    for record in sorted(stream, key=lambda r: r["t"]):
+        ins = engine.ins
+        before = None if ins is None else (ins.state.copy(), ins.P.copy())
+        result = session.add_records([record])
+        if result.rejections and before is not None:
+            assert engine.ins is not None
+            assert np.array_equal(engine.ins.P, before[1])
+            assert engine.ins.state.t == before[0].t
+        if engine.ins is not None:
+            p = engine.ins.P
+            assert np.allclose(p, p.T) and np.linalg.eigvalsh(p).min() > 0.0
