@@ -1,7 +1,8 @@
 """Fusion on real data: the comma2k19 example segment (60 s, highway), against its truth.
 
 Gyro + odometer, steering + odometer, and the strapdown INS on the phone's 6-axis IMU with and
-without wheel speed; the u-blox fixes at 10 Hz, thinned to 1 Hz, and at 1 Hz with a 20 s outage
+without wheel speed (feedback and feedforward integration, first-order and RK4
+mechanisation); the u-blox fixes at 10 Hz, thinned to 1 Hz, and at 1 Hz with a 20 s outage
 (20-40 s). Errors of the fused track beside the raw fixes.
 
     python bench/comma2k19.py [--data tests/data/comma2k19]
@@ -15,9 +16,7 @@ from typing import Any
 
 from report import print_table, write_json
 
-from navsvc.fusion.engine import FusionConfig
-from navsvc.fusion.motion import SensorConfig
-from navsvc.session import SessionConfig, VehicleSession
+from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.comma2k19 import WHEELBASE_M, Gnss, read_segment
 from navsvc.sim.evaluate import evaluate
 from navsvc.wire.positions import position_json
@@ -25,17 +24,24 @@ from navsvc.wire.positions import position_json
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = {"GNSS 10 Hz": Gnss(10.0), "GNSS 1 Hz": Gnss(1.0),
              "1 Hz, 20 s outage": Gnss(1.0, outage=(20.0, 20.0))}
-KINDS = {"gyro_odometer": (SensorConfig.GYRO_ODOMETER, {"imu", "odometer", "gps"}),
-         "steering_odometer": (SensorConfig.STEERING_ODOMETER, {"steering", "odometer", "gps"}),
-         "strapdown": (SensorConfig.STRAPDOWN, {"imu", "gps"}),
-         "strapdown + wheel speed": (SensorConfig.STRAPDOWN, {"imu", "odometer", "gps"})}
+STRAPDOWN = {"sensors": "strapdown"}
+KINDS: dict[str, tuple[dict[str, Any], set[str]]] = {
+    "gyro_odometer": ({"sensors": "gyro_odometer"}, {"imu", "odometer", "gps"}),
+    "steering_odometer": ({"sensors": "steering_odometer"}, {"steering", "odometer", "gps"}),
+    "strapdown": (STRAPDOWN, {"imu", "gps"}),
+    "strapdown rk4": ({**STRAPDOWN, "ins_mechanisation": "rk4"}, {"imu", "gps"}),
+    "strapdown feedforward": ({**STRAPDOWN, "ins_integration": "feedforward"},
+                              {"imu", "gps"}),
+    "strapdown + wheel speed": (STRAPDOWN, {"imu", "odometer", "gps"}),
+    "strapdown feedforward + wheel speed": ({**STRAPDOWN, "ins_integration": "feedforward"},
+                                            {"imu", "odometer", "gps"}),
+}
 
 
 def run(data: Path, gnss: Gnss, name: str) -> dict[str, Any]:
     drive = read_segment(data, gnss)
-    sensors, kinds = KINDS[name]
-    session = VehicleSession(SessionConfig(FusionConfig(sensors=sensors,
-                                                        wheelbase_m=WHEELBASE_M)))
+    options, kinds = KINDS[name]
+    session = VehicleSession(config_from_options({**options, "wheelbase_m": WHEELBASE_M}))
     result = session.add_records([r for r in drive if r["kind"] in kinds])
     assert session.frame is not None
     out = [position_json(p, session.frame) for p in result.positions]
