@@ -101,15 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sensor packets (JSON Lines)")
     run.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.jsonl",
                      help="where to write matched positions")
-    run.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
-                     help="sensor configuration (default gyro_odometer)")
-    run.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
-                     help="GPS fusion mode (default ekf)")
-    run.add_argument("--map-feedback", action="store_true",
-                     help="feed confident matches back into the filter as a road constraint "
-                     "(bounds drift in GPS outages)")
-    run.add_argument("--json", action="store_true", help="print a summary as JSON")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_session_options(run)
 
     ev = sub.add_parser("evaluate", help="accuracy of a run against the truth of its drive",
                         description="Position error (RMS, 95%%, max) of the output and of "
@@ -167,20 +159,27 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("-o", "--output", type=Path, metavar="OUT.jsonl",
                     help="where to write matched positions (default: only a summary)")
     sd.add_argument("--vehicle-id", default="navsvc-send", help="the session's vehicle id")
-    sd.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
-                    help="sensor configuration; packets of other sensors stay behind "
-                    "(default gyro_odometer)")
-    sd.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
-                    help="GPS fusion mode (default ekf)")
-    sd.add_argument("--map-feedback", action="store_true", help="road constraint feedback")
     sd.add_argument("--batch", type=int, default=10, help="packets per message (default 10)")
     sd.add_argument("--realtime", action="store_true",
                     help="send at the drive's own pace instead of as fast as possible")
     sd.add_argument("--api-key", default=os.environ.get("NAVSVC_API_KEY"),
                     help="API key (default: $NAVSVC_API_KEY)")
-    sd.add_argument("--json", action="store_true", help="print a summary as JSON")
-    sd.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_session_options(sd)
     return parser
+
+
+def _add_session_options(parser: argparse.ArgumentParser) -> None:
+    """The session settings and output switches that `run` and `send` share."""
+    parser.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
+                        help="sensor configuration (default gyro_odometer); `send` leaves "
+                        "packets of other sensors behind")
+    parser.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
+                        help="GPS fusion mode (default ekf)")
+    parser.add_argument("--map-feedback", action="store_true",
+                        help="feed confident matches back into the filter as a road "
+                        "constraint (bounds drift in GPS outages)")
+    parser.add_argument("--json", action="store_true", help="print a summary as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
