@@ -283,7 +283,9 @@ class SessionStore:
         except sqlite3.Error:
             log.exception("session %s: trip log write failed; rebuilding from the log",
                           session.id)
-            self._sessions[session.id] = self._replay(session)
+            self._sessions[session.id] = self._replay(
+                LoggedSession(session.id, session.owner, session.vehicle_id, session.options,
+                              session.created_unix), session.rejected)
             raise
         session.packets += len(accepted)
         session.rejected += len(result.rejections)
@@ -306,24 +308,21 @@ class SessionStore:
     def restore(self) -> int:
         """Rebuild every open session of the trip log (after a restart); return how many."""
         for logged in self.triplog.open_sessions():
-            shell = LiveSession(id=logged.id, owner=logged.owner, vehicle_id=logged.vehicle_id,
-                                options=logged.options, created_unix=logged.created_unix,
-                                vehicle=VehicleSession(config_from_options(logged.options),
-                                                       self.graph))
-            self._sessions[logged.id] = self._replay(shell)
-            log.info("session %s restored: %d packets replayed", logged.id,
-                     self._sessions[logged.id].packets)
+            session = self._replay(logged)
+            self._sessions[logged.id] = session
+            log.info("session %s restored: %d packets replayed", logged.id, session.packets)
         return len(self._sessions)
 
-    def _replay(self, session: LiveSession) -> LiveSession:
-        vehicle = VehicleSession(config_from_options(session.options), self.graph)
+    def _replay(self, logged: LoggedSession, rejected: int = 0) -> LiveSession:
+        """A session rebuilt by running its logged packets through a fresh pipeline."""
+        vehicle = VehicleSession(config_from_options(logged.options), self.graph)
         count = 0
-        for record in self.triplog.packets(session.id):
+        for record in self.triplog.packets(logged.id):
             vehicle.add_records([record])
             count += 1
-        return LiveSession(id=session.id, owner=session.owner, vehicle_id=session.vehicle_id,
-                           options=session.options, created_unix=session.created_unix,
-                           vehicle=vehicle, packets=count, rejected=session.rejected,
+        return LiveSession(id=logged.id, owner=logged.owner, vehicle_id=logged.vehicle_id,
+                           options=logged.options, created_unix=logged.created_unix,
+                           vehicle=vehicle, packets=count, rejected=rejected,
                            last_seen=self._clock())
 
     def _close(self, session_id: str) -> None:
