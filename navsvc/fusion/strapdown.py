@@ -134,11 +134,9 @@ class StrapdownEngine:
             raise PacketError(RejectReason.OUT_OF_RANGE,
                               f"imu sample saturated (|gyro| <= {math.degrees(MAX_RATE_RPS):g} "
                               f"deg/s, |accel| <= {MAX_ACCEL_MPS2:g} m/s^2)")
-        if self.ins is not None and self._rates is not None and self._t is not None \
-                and p.t > self.ins.state.t:
-            self._predict_to(p.t)
+        if self._predict_to(p.t):
             self._constrain(p.t)
-        elif self._standing:
+        elif self.ins is None and self._standing:
             self._still_f.append(accel)
         self._rates, self._t = (gyro, accel), p.t
         if self.ins is not None and self._last_output_t is not None and \
@@ -147,13 +145,17 @@ class StrapdownEngine:
             return [self._estimate()]
         return []
 
-    def _predict_to(self, t: float) -> None:
-        assert self.ins is not None and self._rates is not None
+    def _predict_to(self, t: float) -> bool:
+        """Carry the INS to ``t`` on the last IMU rates (held); False when it is not running
+        yet or already there. Runs before any other change a packet makes, as it may refuse."""
+        if self.ins is None or self._rates is None or t <= self.ins.state.t:
+            return False
         dt = t - self.ins.state.t
         try:
             self.ins.predict(t, self._rates[0] * dt, self._rates[1] * dt)
         except ValueError as exc:  # saturated or non-finite sample: hold, report
             raise PacketError(RejectReason.OUT_OF_RANGE, str(exc)) from None
+        return True
 
     def _constrain(self, t: float) -> None:
         """The non-holonomic constraint: a road vehicle does not slide sideways or leave the
@@ -174,8 +176,7 @@ class StrapdownEngine:
 
     def _odometer(self, p: OdometerSample) -> None:
         """Wheel speed along the body x axis (a stop: the whole velocity is zero)."""
-        if self.ins is not None and p.t > self.ins.state.t and self._rates is not None:
-            self._predict_to(p.t)
+        self._predict_to(p.t)
         speed = p.speed_mps
         distance = p.distance_m if p.distance_m is not None else (
             None if p.ticks is None else p.ticks / self.config.ticks_per_m)
@@ -227,8 +228,7 @@ class StrapdownEngine:
             self._odo_scale += ODO_SCALE_GAIN * (ratio - self._odo_scale)
 
     def _gps_fix(self, fix: GpsFix) -> list[FusedEstimate]:
-        if self.ins is not None and fix.t > self.ins.state.t and self._rates is not None:
-            self._predict_to(fix.t)  # first: it may refuse, and then nothing has changed
+        self._predict_to(fix.t)
         self._t = fix.t
         bad = gps_problem(fix, self.config)
         if bad is not None:

@@ -60,9 +60,9 @@ def _read(path: Path, columns: int, what: str) -> Array:
     if not rows:
         raise TraceError(f"{path}: no {what} records")
     data = np.array(rows)
-    if np.any(np.diff(data[:, 1 if what == "navigation" else 0]) <= 0.0):
-        bad = int(np.argmax(np.diff(data[:, 1 if what == "navigation" else 0]) <= 0.0)) + 2
-        raise TraceError(f"{path}: time does not increase at record {bad}")
+    backwards = np.flatnonzero(np.diff(data[:, 1 if what == "navigation" else 0]) <= 0.0)
+    if backwards.size:
+        raise TraceError(f"{path}: time does not increase at record {int(backwards[0]) + 2}")
     return data
 
 
