@@ -1,8 +1,8 @@
 """Fusion on real data: the comma2k19 example segment (60 s, highway), against its truth.
 
 Gyro + odometer, steering + odometer, and the strapdown INS on the phone's 6-axis IMU with and
-without wheel speed (feedback and feedforward integration, first-order and RK4
-mechanisation); the u-blox fixes at 10 Hz, thinned to 1 Hz, and at 1 Hz with a 20 s outage
+without wheel speed (the feedback, feedforward and direct integrations; RK4 mechanisation
+beside first order); the u-blox fixes at 10 Hz, thinned to 1 Hz, and at 1 Hz with a 20 s outage
 (20-40 s). Errors of the fused track beside the raw fixes.
 
     python bench/comma2k19.py [--data tests/data/comma2k19]
@@ -16,6 +16,7 @@ from typing import Any
 
 from report import print_table, write_json
 
+from navsvc.fusion.ins import Integration
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.comma2k19 import WHEELBASE_M, Gnss, read_segment
 from navsvc.sim.evaluate import evaluate
@@ -24,18 +25,16 @@ from navsvc.wire.positions import position_json
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = {"GNSS 10 Hz": Gnss(10.0), "GNSS 1 Hz": Gnss(1.0),
              "1 Hz, 20 s outage": Gnss(1.0, outage=(20.0, 20.0))}
-STRAPDOWN = {"sensors": "strapdown"}
 KINDS: dict[str, tuple[dict[str, Any], set[str]]] = {
     "gyro_odometer": ({"sensors": "gyro_odometer"}, {"imu", "odometer", "gps"}),
     "steering_odometer": ({"sensors": "steering_odometer"}, {"steering", "odometer", "gps"}),
-    "strapdown": (STRAPDOWN, {"imu", "gps"}),
-    "strapdown rk4": ({**STRAPDOWN, "ins_mechanisation": "rk4"}, {"imu", "gps"}),
-    "strapdown feedforward": ({**STRAPDOWN, "ins_integration": "feedforward"},
-                              {"imu", "gps"}),
-    "strapdown + wheel speed": (STRAPDOWN, {"imu", "odometer", "gps"}),
-    "strapdown feedforward + wheel speed": ({**STRAPDOWN, "ins_integration": "feedforward"},
-                                            {"imu", "odometer", "gps"}),
+    "strapdown rk4": ({"sensors": "strapdown", "ins_mechanisation": "rk4"}, {"imu", "gps"}),
 }
+for _integration in Integration:  # the paper's three integrations, with and without wheels
+    _options = {"sensors": "strapdown", "ins_integration": _integration.value}
+    KINDS[f"strapdown {_integration.value}"] = (_options, {"imu", "gps"})
+    KINDS[f"strapdown {_integration.value} + wheel speed"] = (_options,
+                                                              {"imu", "odometer", "gps"})
 
 
 def run(data: Path, gnss: Gnss, name: str) -> dict[str, Any]:

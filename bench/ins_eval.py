@@ -11,9 +11,9 @@ noise and lever arm.
   horizontal error inside each window (the drift of a 60 s outage), also with the
   non-holonomic constraint (the drive has no wheel speed; KF-GINS uses no vehicle constraint).
 
-Every integration (feedback, feedforward) and mechanisation (first order, RK4) runs on
-``dec1hz``, and feedback with first order on a flat earth too; feedback with first order runs
-the outages. Positions are compared at the GNSS antenna (lever arm applied to both filters'
+Every integration (feedback, feedforward, direct) and mechanisation (first order, RK4) runs on
+``dec1hz``, and feedback with first order on a flat earth too; every integration, first order,
+runs the outages. Positions are compared at the GNSS antenna (lever arm applied to both filters'
 attitude).
 
     python bench/ins_eval.py [--data ../shared/peers/rtklibexplorer-drive0708]
@@ -99,8 +99,9 @@ def main() -> None:
     kf = kfgins_track(read_nav(anchor / "kfgins_A_dec1hz_10hz.nav"))
     rows.append({"filter": "KF-GINS", "mode": "feedback (21 states)", "mechanisation": "",
                  **stats(antenna_errors_m(kf, withheld, lever)), "us_per_epoch": 21.7})
-    for mech in Mechanisation:  # compile the kernels before any timing
-        replay(profile.filter(mechanisation=mech), imu[:300], gnss_fixes(gnss1[:3]))
+    for integration in Integration:  # compile the kernels before any timing
+        for mech in Mechanisation:
+            replay(profile.filter(integration, mech), imu[:300], gnss_fixes(gnss1[:3]))
     variants = [(i, m, EarthModel.WGS84) for i in Integration for m in Mechanisation]
     variants.append((Integration.FEEDBACK, Mechanisation.FIRST_ORDER, EarthModel.FLAT))
     for integration, mech, earth in variants:
@@ -116,13 +117,14 @@ def main() -> None:
     for run, starts in OUTAGES.items():
         kept = gnss4[~np.any([(gnss4[:, 0] >= s) & (gnss4[:, 0] < s + 60.0) for s in starts],
                              axis=0)]
-        ours = replay(profile.filter(), imu, gnss_fixes(kept))
-        constrained = replay(profile.filter(), imu, gnss_fixes(kept), nhc_sigma_mps=0.1)
-        theirs = kfgins_track(read_nav(anchor / f"kfgins_A_{run}_10hz.nav"))
+        tracks = {f"navsvc_{i.value}_m": replay(profile.filter(i), imu, gnss_fixes(kept))
+                  for i in Integration}
+        tracks["navsvc_nhc_m"] = replay(profile.filter(), imu, gnss_fixes(kept),
+                                        nhc_sigma_mps=0.1)
+        tracks["kfgins_m"] = kfgins_track(read_nav(anchor / f"kfgins_A_{run}_10hz.nav"))
         drift_rows.append({"run": run, "starts": starts,
-                           "navsvc_m": outage_drifts(ours, gnss4, starts, lever),
-                           "navsvc_nhc_m": outage_drifts(constrained, gnss4, starts, lever),
-                           "kfgins_m": outage_drifts(theirs, gnss4, starts, lever)})
+                           **{k: outage_drifts(track, gnss4, starts, lever)
+                              for k, track in tracks.items()}})
         print(drift_rows[-1])
     print_table("drive 0708, 1 Hz GNSS, scored on the withheld 4 Hz RTK epochs (horizontal)",
                 ["filter", "integration", "mechanisation", "RMS m", "95 % m", "max m",
@@ -132,12 +134,13 @@ def main() -> None:
     def rms(key: str) -> float:
         return math.sqrt(statistics.fmean(d * d for r in drift_rows for d in r[key]))
 
+    keys = [f"navsvc_{i.value}_m" for i in Integration] + ["navsvc_nhc_m", "kfgins_m"]
     print_table("60 s GNSS outages: largest horizontal error in each window (m)",
-                ["run", "windows", "navsvc", "navsvc + non-holonomic", "KF-GINS"],
+                ["run", "windows", *(f"navsvc {i.value}" for i in Integration),
+                 "navsvc feedback + non-holonomic", "KF-GINS"],
                 [[r["run"], ", ".join(f"{s:.0f}" for s in r["starts"]),
-                  *(", ".join(f"{d:.1f}" for d in r[k])
-                    for k in ("navsvc_m", "navsvc_nhc_m", "kfgins_m"))] for r in drift_rows]
-                + [["RMS", "", rms("navsvc_m"), rms("navsvc_nhc_m"), rms("kfgins_m")]])
+                  *(", ".join(f"{d:.1f}" for d in r[k]) for k in keys)] for r in drift_rows]
+                + [["RMS", "", *(rms(k) for k in keys)]])
     write_json("ins_eval", {"accuracy": rows, "outages": drift_rows})
 
 

@@ -31,7 +31,8 @@ class SessionCreate(BaseModel):
     gps_uere_m: float | None = Field(None, gt=0, le=100,
                                      description="GPS error per unit of HDOP, metres")
     ins_integration: Integration | None = Field(
-        None, description="strapdown: feedback (default) or feedforward")
+        None, description="strapdown: feedback (default), feedforward or direct "
+                          "(the paper's three EKF integrations)")
     ins_mechanisation: Mechanisation | None = Field(
         None, description="strapdown: first_order (default) or rk4")
     imu_mounting_rpy_deg: tuple[float, float, float] | None = Field(

@@ -15,7 +15,9 @@ as angle and velocity increments over each sample interval.
   biases as first-order Gauss–Markov processes.
 - Integrations: ``feedback`` (default; each correction goes into the navigation state and the
   biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
-  open loop; the output is that solution less the estimated error, which keeps propagating).
+  open loop; the output is that solution less the estimated error, which keeps propagating);
+  the paper's third, ``direct`` (the EKF over the navigation state itself), is
+  ``ins_direct.DirectInsFilter``, on the same measurement interface.
 - GNSS position updates with lever arm and a chi-square gate, GNSS velocity; body-frame
   velocity updates for
   wheel speed, the non-holonomic constraint (no sideways or vertical motion) and stops.
@@ -52,6 +54,7 @@ MAX_ACCEL_MPS2 = 16.0 * 9.80665
 class Integration(enum.Enum):
     FEEDBACK = "feedback"
     FEEDFORWARD = "feedforward"
+    DIRECT = "direct"  # the EKF over the navigation state itself: ins_direct.DirectInsFilter
 
 
 class EarthModel(enum.Enum):
@@ -99,17 +102,20 @@ def rotation(rotvec: Array) -> Array:
     return np.eye(3) + math.sin(angle) / angle * k + (1.0 - math.cos(angle)) / angle**2 * k @ k
 
 
+@jit
 def euler_to_dcm(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Array:
     """C_bn from roll, pitch, yaw (Z-Y-X rotation sequence)."""
     cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), \
         math.sin(pitch_rad)
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
-    return np.array([
-        [cp * cy, -cr * sy + sr * sp * cy, sr * sy + cr * sp * cy],
-        [cp * sy, cr * cy + sr * sp * sy, -sr * cy + cr * sp * sy],
-        [-sp, sr * cp, cr * cp]])
+    c = np.empty((3, 3))
+    c[0, 0], c[0, 1], c[0, 2] = cp * cy, -cr * sy + sr * sp * cy, sr * sy + cr * sp * cy
+    c[1, 0], c[1, 1], c[1, 2] = cp * sy, cr * cy + sr * sp * sy, -sr * cy + cr * sp * sy
+    c[2, 0], c[2, 1], c[2, 2] = -sp, sr * cp, cr * cp
+    return c
 
 
+@jit
 def dcm_to_euler(c: Array) -> tuple[float, float, float]:
     """(roll, pitch, yaw) of C_bn; yaw in [0, 2π)."""
     pitch = math.atan2(-c[2, 0], math.hypot(c[2, 1], c[2, 2]))
@@ -290,13 +296,8 @@ class InsFilter:
         or a saturated one (above ``MAX_RATE_RPS`` or ``MAX_ACCEL_MPS2``). A gap in IMU time
         is integrated as one long step; the covariance grows with it.
         """
+        self._check_sample(t, dtheta, dvel)
         dt = t - self.state.t
-        if not dt > 0.0:
-            raise ValueError(f"IMU time must increase: {t} after {self.state.t}")
-        if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(dvel))):
-            raise ValueError(f"IMU sample at t={t} is not finite")
-        if np.abs(dtheta).max() > MAX_RATE_RPS * dt or np.abs(dvel).max() > MAX_ACCEL_MPS2 * dt:
-            raise ValueError(f"IMU sample at t={t} is saturated")
         self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation, self.earth)
         s = self.state
         phi = _transition(s.lat_rad, s.h_m, s.v_ned, s.c_bn, f_n, dt,
@@ -305,23 +306,24 @@ class InsFilter:
         if self.integration == Integration.FEEDFORWARD:
             self.dx = phi @ self.dx
 
+    def _check_sample(self, t: float, dtheta: Array, dvel: Array) -> None:
+        dt = t - self.state.t
+        if not dt > 0.0:
+            raise ValueError(f"IMU time must increase: {t} after {self.state.t}")
+        if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(dvel))):
+            raise ValueError(f"IMU sample at t={t} is not finite")
+        if np.abs(dtheta).max() > MAX_RATE_RPS * dt or np.abs(dvel).max() > MAX_ACCEL_MPS2 * dt:
+            raise ValueError(f"IMU sample at t={t} is saturated")
+
     def update_position(self, fix: GnssFix) -> bool:
         """A GNSS position at the state's time (the caller predicts to it first); False when
         the chi-square gate refuses it."""
-        s = self.state
         if not (np.all(np.isfinite(fix.sigma_ned_m)) and np.all(fix.sigma_ned_m > 0.0)):
             raise ValueError(f"GNSS standard deviations must be finite and > 0, "
                              f"got {fix.sigma_ned_m}")
-        rm, rn = radii_m(s.lat_rad)
-        lever_n = s.c_bn @ self.lever_arm_b_m
-        z = np.array([(s.lat_rad - fix.lat_rad) * (rm + s.h_m),
-                      (s.lon_rad - fix.lon_rad) * (rn + s.h_m) * math.cos(s.lat_rad),
-                      -(s.h_m - fix.h_m)]) + lever_n
-        h = np.zeros((3, N_ERR))
-        h[:, POS] = np.eye(3)
-        h[:, ATT] = -skew(lever_n)
+        y, h = self._position_residual(fix)
         r = np.diag(fix.sigma_ned_m**2)
-        y = z - h @ self.dx
+        y = y - h @ self.dx
         s_mat = h @ self.P @ h.T + r
         # the gate allows for model error the fix's own sigma leaves out (an RTK fix says
         # 1 cm; lever arm, timing and mechanisation are not that good)
@@ -343,49 +345,72 @@ class InsFilter:
         """Measured components (``rows`` of x fwd, y right, z down) of the velocity in the
         body frame: wheel speed (x), the non-holonomic constraint (y = z = 0), or a stop
         (all three 0). False when the gate refuses it."""
-        s = self.state
-        c_nb = s.c_bn.T
-        v_b = c_nb @ s.v_ned
-        h_full = np.zeros((3, N_ERR))
-        h_full[:, VEL] = c_nb
-        h_full[:, ATT] = c_nb @ skew(s.v_ned)
         idx = list(rows)
-        h = h_full[idx]
-        y = (v_b - z_b)[idx] - h @ self.dx
+        y, h = self._body_velocity_residual(z_b)
         r = np.diag(np.asarray(sigma_mps, dtype=np.float64)[idx] ** 2)
-        s_mat = h @ self.P @ h.T + r
-        if float(y @ np.linalg.solve(s_mat, y)) > CHI2_3DOF_999:
-            return False
-        self._apply(h, y, r, s_mat)
-        return True
+        return self._gated_update(y[idx], h[idx], r, CHI2_3DOF_999)
 
     def update_velocity(self, v_ned: Array, rows: tuple[int, ...], sigma_mps: float) -> bool:
         """GNSS velocity (the ``rows`` of north, east, down that were measured)."""
         idx = list(rows)
-        h = np.zeros((len(idx), N_ERR))
-        h[:, VEL] = np.eye(3)[idx]
-        y = (self.state.v_ned - v_ned)[idx] - h @ self.dx
-        r = np.eye(len(idx)) * sigma_mps**2
-        s_mat = h @ self.P @ h.T + r
-        if float(y @ np.linalg.solve(s_mat, y)) > CHI2_3DOF_999:
-            return False
-        self._apply(h, y, r, s_mat)
-        return True
+        y, h = self._velocity_residual(v_ned)
+        return self._gated_update(y[idx], h[idx], np.eye(len(idx)) * sigma_mps**2,
+                                  CHI2_3DOF_999)
 
     def update_rest(self, gyro_rps: Array, gyro_sigma_rps: float,
                     velocity_sigma_mps: float) -> bool:
         """The vehicle stands still: zero velocity, and the gyro reads its bias plus the
         earth's rate (zero-velocity and zero-angular-rate updates). False when gated."""
+        y, h = self._rest_residual(gyro_rps)
+        r = np.diag([velocity_sigma_mps**2] * 3 + [gyro_sigma_rps**2] * 3)
+        return self._gated_update(y, h, r, CHI2_6DOF_999)
+
+    def position_cov_ned_m2(self) -> Array:
+        """Covariance of the position (north, east, down; m²)."""
+        return self.P[POS, POS].copy()
+
+    def heading_sigma_rad(self) -> float:
+        return float(math.sqrt(self.P[8, 8]))
+
+    # measurement models: (predicted - measured, its Jacobian in the filter's state) --------
+    def _position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
         s = self.state
-        w_ie_b = s.c_bn.T @ (self._rotating * EARTH_RATE_RPS * np.array(
-            [math.cos(s.lat_rad), 0.0, -math.sin(s.lat_rad)]))
+        rm, rn = radii_m(s.lat_rad)
+        lever_n = s.c_bn @ self.lever_arm_b_m
+        y = np.array([(s.lat_rad - fix.lat_rad) * (rm + s.h_m),
+                      (s.lon_rad - fix.lon_rad) * (rn + s.h_m) * math.cos(s.lat_rad),
+                      -(s.h_m - fix.h_m)]) + lever_n
+        h = np.zeros((3, N_ERR))
+        h[:, POS] = np.eye(3)
+        h[:, ATT] = -skew(lever_n)
+        return y, h
+
+    def _body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
+        s = self.state
+        c_nb = s.c_bn.T
+        h = np.zeros((3, N_ERR))
+        h[:, VEL] = c_nb
+        h[:, ATT] = c_nb @ skew(s.v_ned)
+        return c_nb @ s.v_ned - z_b, h
+
+    def _velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
+        h = np.zeros((3, N_ERR))
+        h[:, VEL] = np.eye(3)
+        return self.state.v_ned - v_ned, h
+
+    def _rest_residual(self, gyro_rps: Array) -> tuple[Array, Array]:
+        s = self.state
         h = np.zeros((6, N_ERR))
         h[0:3, VEL] = np.eye(3)
         h[3:6, BG] = np.eye(3)  # the residual rate is the bias error (true - estimate)
-        y = np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - w_ie_b]) - h @ self.dx
-        r = np.diag([velocity_sigma_mps**2] * 3 + [gyro_sigma_rps**2] * 3)
+        return np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - _earth_rate_b(
+            s, self._rotating)]), h
+
+    def _gated_update(self, y: Array, h: Array, r: Array, chi2: float) -> bool:
+        """The update of one measurement unless the chi-square gate refuses it."""
+        y = y - h @ self.dx
         s_mat = h @ self.P @ h.T + r
-        if float(y @ np.linalg.solve(s_mat, y)) > CHI2_6DOF_999:
+        if float(y @ np.linalg.solve(s_mat, y)) > chi2:
             return False
         self._apply(h, y, r, s_mat)
         return True
@@ -412,6 +437,12 @@ class InsFilter:
         self.state.accel_bias_mps2 = self.state.accel_bias_mps2 + self.dx[BA]
         self.dx = np.zeros(N_ERR)
 
+
+
+def _earth_rate_b(s: NavState, rotating: float) -> Array:
+    """The earth's rotation as the body's gyros see it."""
+    return s.c_bn.T @ (rotating * EARTH_RATE_RPS * np.array(
+        [math.cos(s.lat_rad), 0.0, -math.sin(s.lat_rad)]))
 
 
 @jit

@@ -39,6 +39,7 @@ from navsvc.fusion.ins import (
     euler_to_dcm,
     level_from_accel,
 )
+from navsvc.fusion.ins_direct import ins_filter
 from navsvc.fusion.motion import SensorConfig
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
@@ -275,7 +276,7 @@ class StrapdownEngine:
                          self._height_m,
                          fix.speed_mps * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
                          euler_to_dcm(roll, pitch, yaw))
-        self.ins = InsFilter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
+        self.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
                              o.mechanisation)
         self._last_output_t = fix.t
         self._gps = GpsUsage(True, 1.0, "aligned: level from the IMU, heading from GPS")
@@ -284,11 +285,11 @@ class StrapdownEngine:
         assert self.ins is not None and self.frame is not None
         s = self.ins.output()
         x, y = self.frame.to_local(math.degrees(s.lon_rad), math.degrees(s.lat_rad))
-        p = self.ins.P
+        p = self.ins.position_cov_ned_m2()
         cov = np.array([[p[1, 1], p[1, 0]], [p[0, 1], p[0, 0]]])  # (east, north) = (x, y)
         yaw_rate = 0.0 if self._rates is None else float(
             (s.c_bn @ (self._rates[0] - s.gyro_bias_rps))[2])
         return FusedEstimate(t=s.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(s.c_bn)[2],
                              speed_mps=float(math.hypot(s.v_ned[0], s.v_ned[1])),
                              yaw_rate_rps=yaw_rate, position_cov_m2=cov,
-                             heading_sigma_rad=float(math.sqrt(p[8, 8])), gps=self._gps)
+                             heading_sigma_rad=self.ins.heading_sigma_rad(), gps=self._gps)

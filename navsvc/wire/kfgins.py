@@ -33,6 +33,7 @@ from navsvc.fusion.ins import (
     NavState,
     euler_to_dcm,
 )
+from navsvc.fusion.ins_direct import ins_filter
 
 
 def _read(path: Path, columns: int, what: str) -> Array:
@@ -116,7 +117,7 @@ class KfGinsProfile:
                                  np.radians(self.att_std_deg),
                                  np.radians(self.gyro_bias_std_deg_h) / 3600.0,
                                  np.array(self.accel_bias_std_mgal) * 1e-5])
-        return InsFilter(state, np.diag(sigmas**2), self.noise, np.array(self.lever_arm_m),
+        return ins_filter(state, np.diag(sigmas**2), self.noise, np.array(self.lever_arm_m),
                          integration, mechanisation, earth)
 
 

@@ -23,12 +23,15 @@ def drive(sample_graph: RoadGraph) -> list[dict]:
                                                   tunnels_block_gps=False))
 
 
-@pytest.mark.parametrize("with_odometer", [False, True])
+@pytest.mark.parametrize(("integration", "with_odometer"),
+                         [("feedback", False), ("feedback", True), ("direct", True)])
 def test_strapdown_session_follows_the_drive_through_an_outage(
-        drive: list[dict], sample_graph: RoadGraph, with_odometer: bool) -> None:
+        drive: list[dict], sample_graph: RoadGraph, integration: str,
+        with_odometer: bool) -> None:
     kinds = set(SENSOR_KINDS["strapdown"]) - (set() if with_odometer else {"odometer"})
     packets = [r for r in drive if r["kind"] in kinds]
-    session = VehicleSession(config_from_options({"sensors": "strapdown"}), sample_graph)
+    session = VehicleSession(config_from_options(
+        {"sensors": "strapdown", "ins_integration": integration}), sample_graph)
     result = session.add_records(packets)
     assert not result.rejections
     out = [position_json(p, sample_graph.frame) for p in result.positions]
