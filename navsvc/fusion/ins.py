@@ -10,9 +10,10 @@ as angle and velocity increments over each sample interval.
   flat, non-rotating earth (``FLAT``); ``first_order`` (rotation-vector attitude update,
   mid-point position) or the paper's ``rk4`` on the continuous equations with the rates held
   over the step.
-- Error state (15): position error (NED, m), velocity error (NED, m/s), attitude error ψ (rad;
-  estimated attitude = (I + [ψ×]) true), gyro bias (rad/s), accelerometer bias (m/s²), the
-  biases as first-order Gauss–Markov processes.
+- Error state (21, as KF-GINS): position error (NED, m), velocity error (NED, m/s), attitude
+  error ψ (rad; estimated attitude = (I + [ψ×]) true), gyro and accelerometer biases (rad/s,
+  m/s²) and scale factors (measured = (1 + scale) true + bias), each a first-order
+  Gauss–Markov process.
 - Integrations: ``feedback`` (default; each correction goes into the navigation state and the
   biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
   open loop; the output is that solution less the estimated error, which keeps propagating);
@@ -41,8 +42,9 @@ jit = numba.njit(cache=True, nogil=True)
 WGS84_A = 6378137.0
 WGS84_E2 = 6.69437999014e-3
 EARTH_RATE_RPS = 7.2921151467e-5
-N_ERR = 15
+N_ERR = 21
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
+SG, SA = slice(15, 18), slice(18, 21)  # gyro and accelerometer scale factors
 CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
 CHI2_6DOF_999 = 22.46
 GATE_FLOOR_M = 0.5
@@ -131,7 +133,8 @@ def level_from_accel(mean_f_b: Array) -> tuple[float, float]:
 # --- navigation state and mechanisation ----------------------------------------------------
 @dataclass
 class NavState:
-    """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, sensor bias estimates."""
+    """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, and the estimates of
+    the sensors' biases and scale factors."""
 
     t: float
     lat_rad: float
@@ -141,11 +144,37 @@ class NavState:
     c_bn: Array
     gyro_bias_rps: Array = field(default_factory=lambda: np.zeros(3))
     accel_bias_mps2: Array = field(default_factory=lambda: np.zeros(3))
+    gyro_scale: Array = field(default_factory=lambda: np.zeros(3))
+    accel_scale: Array = field(default_factory=lambda: np.zeros(3))
 
     def copy(self) -> NavState:
         return NavState(self.t, self.lat_rad, self.lon_rad, self.h_m, self.v_ned.copy(),
                         self.c_bn.copy(), self.gyro_bias_rps.copy(),
-                        self.accel_bias_mps2.copy())
+                        self.accel_bias_mps2.copy(), self.gyro_scale.copy(),
+                        self.accel_scale.copy())
+
+    def compensate(self, dtheta: Array, dvel: Array, dt: float) -> tuple[Array, Array]:
+        """IMU increments less the estimated bias and scale errors."""
+        return _compensate(dtheta, dvel, dt, self.gyro_bias_rps, self.accel_bias_mps2,
+                           self.gyro_scale, self.accel_scale)
+
+
+@jit
+def _compensate(dtheta: Array, dvel: Array, dt: float, bg: Array, ba: Array, sg: Array,
+                sa: Array) -> tuple[Array, Array]:
+    return (dtheta - bg * dt) / (1.0 + sg), (dvel - ba * dt) / (1.0 + sa)
+
+
+@jit
+def _sample_problem(dtheta: Array, dvel: Array, dt: float) -> str:
+    """Why an IMU sample cannot be used ("" when it can)."""
+    for i in range(3):
+        if not (math.isfinite(dtheta[i]) and math.isfinite(dvel[i])):
+            return "is not finite"
+    for i in range(3):
+        if abs(dtheta[i]) > MAX_RATE_RPS * dt or abs(dvel[i]) > MAX_ACCEL_MPS2 * dt:
+            return "is saturated"
+    return ""
 
 
 @jit
@@ -176,11 +205,11 @@ def mechanise(s: NavState, t: float, dtheta: Array, dvel: Array,
               method: Mechanisation = Mechanisation.FIRST_ORDER,
               earth: EarthModel = EarthModel.WGS84) -> tuple[NavState, Array]:
     """Advance the navigation state by one IMU interval; return it and the specific force in
-    the navigation frame (for the error model). Biases are removed from the increments."""
+    the navigation frame (for the error model). Bias and scale errors are removed from the
+    increments first."""
     rotating = 1.0 if earth == EarthModel.WGS84 else 0.0
     dt = t - s.t
-    dtheta = dtheta - s.gyro_bias_rps * dt
-    dvel = dvel - s.accel_bias_mps2 * dt
+    dtheta, dvel = s.compensate(dtheta, dvel, dt)
     out = s.copy()
     out.t = t
     if method == Mechanisation.RK4:
@@ -244,15 +273,18 @@ class ImuNoise:
     vrw_mps_per_sqrt_s: float
     gyro_bias_sigma_rps: float
     accel_bias_sigma_mps2: float
-    bias_corr_time_s: float
+    bias_corr_time_s: float  # of the biases and the scale factors
+    gyro_scale_sigma: float = 1e-3
+    accel_scale_sigma: float = 1e-3
 
     @classmethod
     def from_kfgins(cls, arw_deg_per_sqrt_h: float, vrw_mps_per_sqrt_h: float,
                     gyro_bias_deg_per_h: float, accel_bias_mgal: float,
-                    corr_time_h: float) -> ImuNoise:
+                    corr_time_h: float, gyro_scale_ppm: float = 1000.0,
+                    accel_scale_ppm: float = 1000.0) -> ImuNoise:
         return cls(math.radians(arw_deg_per_sqrt_h) / 60.0, vrw_mps_per_sqrt_h / 60.0,
                    math.radians(gyro_bias_deg_per_h) / 3600.0, accel_bias_mgal * 1e-5,
-                   corr_time_h * 3600.0)
+                   corr_time_h * 3600.0, gyro_scale_ppm * 1e-6, accel_scale_ppm * 1e-6)
 
 
 @dataclass
@@ -265,7 +297,7 @@ class GnssFix:
 
 
 class InsFilter:
-    """One vehicle's INS with its 15-state error-state EKF."""
+    """One vehicle's INS with its 21-state error-state EKF."""
 
     def __init__(self, state: NavState, p0: Array, noise: ImuNoise,
                  lever_arm_b_m: Array | None = None,
@@ -287,6 +319,8 @@ class InsFilter:
         q[ATT] = noise.arw_rad_per_sqrt_s**2
         q[BG] = 2.0 * noise.gyro_bias_sigma_rps**2 / noise.bias_corr_time_s
         q[BA] = 2.0 * noise.accel_bias_sigma_mps2**2 / noise.bias_corr_time_s
+        q[SG] = 2.0 * noise.gyro_scale_sigma**2 / noise.bias_corr_time_s
+        q[SA] = 2.0 * noise.accel_scale_sigma**2 / noise.bias_corr_time_s
         self._q_density = q
 
     def predict(self, t: float, dtheta: Array, dvel: Array) -> None:
@@ -298,10 +332,11 @@ class InsFilter:
         """
         self._check_sample(t, dtheta, dvel)
         dt = t - self.state.t
+        dtheta_c, dvel_c = self.state.compensate(dtheta, dvel, dt)
         self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation, self.earth)
         s = self.state
-        phi = _transition(s.lat_rad, s.h_m, s.v_ned, s.c_bn, f_n, dt,
-                          self.noise.bias_corr_time_s, self._rotating)
+        phi = _transition(s.lat_rad, s.h_m, s.v_ned, s.c_bn, f_n, dtheta_c / dt, dvel_c / dt,
+                          dt, self.noise.bias_corr_time_s, self._rotating)
         self.P = _propagate(self.P, phi, self._q_density * dt)
         if self.integration == Integration.FEEDFORWARD:
             self.dx = phi @ self.dx
@@ -310,10 +345,9 @@ class InsFilter:
         dt = t - self.state.t
         if not dt > 0.0:
             raise ValueError(f"IMU time must increase: {t} after {self.state.t}")
-        if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(dvel))):
-            raise ValueError(f"IMU sample at t={t} is not finite")
-        if np.abs(dtheta).max() > MAX_RATE_RPS * dt or np.abs(dvel).max() > MAX_ACCEL_MPS2 * dt:
-            raise ValueError(f"IMU sample at t={t} is saturated")
+        problem = _sample_problem(dtheta, dvel, dt)
+        if problem:
+            raise ValueError(f"IMU sample at t={t} {problem}")
 
     def update_position(self, fix: GnssFix) -> bool:
         """A GNSS position at the state's time (the caller predicts to it first); False when
@@ -435,6 +469,8 @@ class InsFilter:
         self.state = _corrected(self.state, self.dx)
         self.state.gyro_bias_rps = self.state.gyro_bias_rps + self.dx[BG]
         self.state.accel_bias_mps2 = self.state.accel_bias_mps2 + self.dx[BA]
+        self.state.gyro_scale = self.state.gyro_scale + self.dx[SG]
+        self.state.accel_scale = self.state.accel_scale + self.dx[SA]
         self.dx = np.zeros(N_ERR)
 
 
@@ -446,9 +482,10 @@ def _earth_rate_b(s: NavState, rotating: float) -> Array:
 
 
 @jit
-def _transition(lat: float, h: float, v: Array, c: Array, f_n: Array, dt: float,
-                tau: float, rotating: float) -> Array:
-    """Φ = I + F dt of the ψ-angle error model with Gauss–Markov biases."""
+def _transition(lat: float, h: float, v: Array, c: Array, f_n: Array, w_b: Array, f_b: Array,
+                dt: float, tau: float, rotating: float) -> Array:
+    """Φ = I + F dt of the ψ-angle error model with Gauss–Markov biases and scale factors
+    (``w_b``, ``f_b``: the compensated body rate and specific force)."""
     w_ie, w_en = _rates(lat, h, v, rotating)
     f = np.zeros((N_ERR, N_ERR))
     f[0:3, 3:6] = np.eye(3)
@@ -457,7 +494,9 @@ def _transition(lat: float, h: float, v: Array, c: Array, f_n: Array, dt: float,
     f[3:6, 12:15] = c
     f[6:9, 6:9] = -skew(w_ie + w_en)
     f[6:9, 9:12] = c
-    for i in range(9, 15):
+    f[6:9, 15:18] = c * w_b  # C diag(w): a scale error acts as a bias in proportion
+    f[3:6, 18:21] = c * f_b
+    for i in range(9, N_ERR):
         f[i, i] = -1.0 / tau
     return np.eye(N_ERR) + f * dt
 

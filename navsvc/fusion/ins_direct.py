@@ -5,8 +5,8 @@ ones (``feedback``, ``feedforward``) estimate the error of the inertial solution
 ``ins.InsFilter``. Here the filter's state is the navigation solution (the paper's set N) and its
 system model is the equations of motion themselves:
 
-- state (15): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
-  gyro bias (rad/s), accelerometer bias (m/s²);
+- state (21): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
+  gyro and accelerometer biases (rad/s, m/s²) and scale factors;
 - the mean follows the same mechanisation as the other modes (first order or RK4);
 - the covariance follows the Jacobian of the continuous equations of motion (Euler-angle
   kinematics, transport and earth rate, gravity), taken by central differences, so there is
@@ -28,8 +28,6 @@ from collections.abc import Callable
 import numpy as np
 
 from navsvc.fusion.ins import (
-    BA,
-    BG,
     N_ERR,
     POS,
     Array,
@@ -52,7 +50,7 @@ from navsvc.fusion.ins import (
 
 # central-difference steps per state: about 0.1 m, 1 mm/s, 2 arc-seconds, tiny biases
 STEP = np.array([1.5e-8, 1.5e-8, 0.1, 1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5,
-                 1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4])
+                 1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5])
 MAX_PITCH_RAD = math.radians(85.0)  # Euler kinematics are singular at ±90°
 MAX_COVARIANCE_STEP_S = 0.02
 MAX_ANGLE_SIGMA_RAD = math.pi
@@ -70,14 +68,15 @@ def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, rotating: f
     out[1] = v[1] / ((rn + h) * math.cos(lat))
     out[2] = -v[2]
     g = np.array([0.0, 0.0, normal_gravity_mps2(lat, h)])
-    out[3:6] = c @ (f_b - x[12:15]) + g - np.cross(2.0 * w_ie + w_en, v)
-    w = (w_ib - x[9:12]) - c.T @ (w_ie + w_en)  # body rate relative to the NED frame
+    out[3:6] = c @ ((f_b - x[12:15]) / (1.0 + x[18:21])) + g - np.cross(2.0 * w_ie + w_en, v)
+    # body rate relative to the NED frame
+    w = (w_ib - x[9:12]) / (1.0 + x[15:18]) - c.T @ (w_ie + w_en)
     sr, cr = math.sin(x[6]), math.cos(x[6])
     pitch = min(max(x[7], -MAX_PITCH_RAD), MAX_PITCH_RAD)  # kept off the singularity
     out[6] = w[0] + (w[1] * sr + w[2] * cr) * math.tan(pitch)
     out[7] = w[1] * cr - w[2] * sr
     out[8] = (w[1] * sr + w[2] * cr) / math.cos(pitch)
-    out[9:15] = -x[9:15] / tau
+    out[9:N_ERR] = -x[9:N_ERR] / tau
     return out
 
 
@@ -85,10 +84,10 @@ def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, rotating: f
 def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, tau: float,
                       rotating: float, q_density: Array) -> Array:
     """P through one step: Φ = I + F dt with F = ∂f/∂x by central differences; the sensor
-    noise enters through ∂f/∂(rate, force), which is −∂f/∂(biases). A long step (a gap in
-    the IMU data) is taken as sub-steps of ``MAX_COVARIANCE_STEP_S``, as Φ = I + F dt only
-    holds while F dt is small. Angle variances are capped: near ±90° pitch the Euler
-    kinematics would otherwise grow them without bound."""
+    noise enters through ∂f/∂(rate, force), which is −∂f/∂(biases) as biases subtract. A long
+    step (a gap in the IMU data) is taken as sub-steps of ``MAX_COVARIANCE_STEP_S``, as
+    Φ = I + F dt only holds while F dt is small. Angle variances are capped: near ±90° pitch
+    the Euler kinematics would otherwise grow them without bound."""
     f_mat = np.empty((N_ERR, N_ERR))
     for i in range(N_ERR):
         xp, xm = x.copy(), x.copy()
@@ -101,7 +100,7 @@ def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, ta
     h = dt / steps
     phi = np.eye(N_ERR) + f_mat * h
     q = (g * q_density[:6]) @ g.T * h
-    for i in range(9, 15):
+    for i in range(9, N_ERR):
         q[i, i] += q_density[i - 3] * h
     out = p
     for _ in range(steps):
@@ -117,12 +116,13 @@ def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, ta
 def total_state(s: NavState) -> Array:
     roll, pitch, yaw = dcm_to_euler(s.c_bn)
     return np.concatenate([[s.lat_rad, s.lon_rad, s.h_m], s.v_ned, [roll, pitch, yaw],
-                           s.gyro_bias_rps, s.accel_bias_mps2])
+                           s.gyro_bias_rps, s.accel_bias_mps2, s.gyro_scale, s.accel_scale])
 
 
 def nav_state(t: float, x: Array) -> NavState:
     return NavState(t, float(x[0]), float(x[1]), float(x[2]), x[3:6].copy(),
-                    euler_to_dcm(x[6], x[7], x[8]), x[9:12].copy(), x[12:15].copy())
+                    euler_to_dcm(x[6], x[7], x[8]), x[9:12].copy(), x[12:15].copy(),
+                    x[15:18].copy(), x[18:21].copy())
 
 
 def _metres_per_unit(s: NavState) -> Array:
@@ -148,7 +148,7 @@ class DirectInsFilter(InsFilter):
         self.P = p0 * np.outer(scale, scale)
         self._q_density = np.concatenate([[noise.arw_rad_per_sqrt_s**2] * 3,
                                           [noise.vrw_mps_per_sqrt_s**2] * 3,
-                                          self._q_density[BG], self._q_density[BA]])
+                                          self._q_density[9:]])
 
     def predict(self, t: float, dtheta: Array, dvel: Array) -> None:
         """One IMU interval: the equations of motion carry the state, their Jacobian the
@@ -163,6 +163,8 @@ class DirectInsFilter(InsFilter):
         decay = 1.0 - dt / self.noise.bias_corr_time_s
         self.state.gyro_bias_rps = before.gyro_bias_rps * decay
         self.state.accel_bias_mps2 = before.accel_bias_mps2 * decay
+        self.state.gyro_scale = before.gyro_scale * decay
+        self.state.accel_scale = before.accel_scale * decay
 
     def position_cov_ned_m2(self) -> Array:
         m = _metres_per_unit(self.state)

@@ -68,8 +68,8 @@ class StrapdownOptions:
     still_speed_mps: float = 0.3
     level_window: int = 100  # IMU samples averaged for levelling
     initial_sigmas: tuple[float, ...] = (  # position m, velocity m/s, roll/pitch/yaw rad,
-        5.0, 0.5, math.radians(2.0), math.radians(10.0),  # gyro bias rad/s, accel bias m/s²
-        math.radians(0.5), 0.1)
+        5.0, 0.5, math.radians(2.0), math.radians(10.0),  # gyro bias rad/s, accel bias m/s²,
+        math.radians(0.5), 0.1, 3e-3)  # scale factors (gyro and accelerometer)
 
 
 DEFAULT_CONFIG = FusionConfig(sensors=SensorConfig.STRAPDOWN)
@@ -270,7 +270,8 @@ class StrapdownEngine:
         sigma = gps_sigma_m(fix, self.config)
         s = o.initial_sigmas
         p0 = np.diag(np.array([max(s[0], sigma)] * 2 + [2.0 * max(s[0], sigma)] + [s[1]] * 3
-                              + [s[2], s[2], s[3]] + [s[4]] * 3 + [s[5]] * 3) ** 2)
+                              + [s[2], s[2], s[3]] + [s[4]] * 3 + [s[5]] * 3 + [s[6]] * 6)
+                     ** 2)
         self._height_m = fix.alt_m if fix.alt_m is not None else 0.0
         state = NavState(fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg),
                          self._height_m,

@@ -96,11 +96,15 @@ class KfGinsProfile:
     init_att_deg: tuple[float, float, float]  # roll, pitch, yaw
     init_gyro_bias_deg_h: tuple[float, float, float]
     init_accel_bias_mgal: tuple[float, float, float]
+    init_gyro_scale_ppm: tuple[float, float, float]
+    init_accel_scale_ppm: tuple[float, float, float]
     pos_std_m: tuple[float, float, float]
     vel_std_mps: tuple[float, float, float]
     att_std_deg: tuple[float, float, float]
     gyro_bias_std_deg_h: tuple[float, float, float]
     accel_bias_std_mgal: tuple[float, float, float]
+    gyro_scale_std_ppm: tuple[float, float, float]
+    accel_scale_std_ppm: tuple[float, float, float]
     noise: ImuNoise
     lever_arm_m: tuple[float, float, float]
 
@@ -112,18 +116,22 @@ class KfGinsProfile:
         state = NavState(self.start_t, math.radians(lat), math.radians(lon), h,
                          np.array(self.init_vel), euler_to_dcm(*np.radians(self.init_att_deg)),
                          np.radians(self.init_gyro_bias_deg_h) / 3600.0,
-                         np.array(self.init_accel_bias_mgal) * 1e-5)
+                         np.array(self.init_accel_bias_mgal) * 1e-5,
+                         np.array(self.init_gyro_scale_ppm) * 1e-6,
+                         np.array(self.init_accel_scale_ppm) * 1e-6)
         sigmas = np.concatenate([self.pos_std_m, self.vel_std_mps,
                                  np.radians(self.att_std_deg),
                                  np.radians(self.gyro_bias_std_deg_h) / 3600.0,
-                                 np.array(self.accel_bias_std_mgal) * 1e-5])
+                                 np.array(self.accel_bias_std_mgal) * 1e-5,
+                                 np.array(self.gyro_scale_std_ppm) * 1e-6,
+                                 np.array(self.accel_scale_std_ppm) * 1e-6])
         return ins_filter(state, np.diag(sigmas**2), self.noise, np.array(self.lever_arm_m),
                          integration, mechanisation, earth)
 
 
 def read_profile(path: Path) -> KfGinsProfile:
     """A KF-GINS configuration file (its flat YAML: ``key: value``, ``key: [a, b, c]``, and the
-    ``imunoise:`` block). Scale-factor settings are read past: our filter has no such states."""
+    ``imunoise:`` block)."""
     values: dict[str, Any] = {}
     try:
         lines = path.read_text().splitlines()
@@ -144,7 +152,8 @@ def read_profile(path: Path) -> KfGinsProfile:
             raise TraceError(f"{path}:{number}: {key}: not a list of numbers") from None
     try:
         noise = ImuNoise.from_kfgins(values["arw"][0], values["vrw"][0], values["gbstd"][0],
-                                     values["abstd"][0], float(values["corrtime"]))
+                                     values["abstd"][0], float(values["corrtime"]),
+                                     values["gsstd"][0], values["asstd"][0])
         return KfGinsProfile(
             start_t=float(values["starttime"]), init_pos=_xyz(values["initpos"]),
             init_vel=_xyz(values["initvel"]), init_att_deg=_xyz(values["initatt"]),
@@ -153,7 +162,11 @@ def read_profile(path: Path) -> KfGinsProfile:
             pos_std_m=_xyz(values["initposstd"]), vel_std_mps=_xyz(values["initvelstd"]),
             att_std_deg=_xyz(values["initattstd"]),
             gyro_bias_std_deg_h=_xyz(values["initbgstd"]),
-            accel_bias_std_mgal=_xyz(values["initbastd"]), noise=noise,
+            accel_bias_std_mgal=_xyz(values["initbastd"]),
+            init_gyro_scale_ppm=_xyz(values["initgyrscale"]),
+            init_accel_scale_ppm=_xyz(values["initaccscale"]),
+            gyro_scale_std_ppm=_xyz(values["initsgstd"]),
+            accel_scale_std_ppm=_xyz(values["initsastd"]), noise=noise,
             lever_arm_m=_xyz(values.get("antlever", [0.0, 0.0, 0.0])))
     except KeyError as exc:
         raise TraceError(f"{path}: missing setting {exc.args[0]!r}") from None

@@ -32,7 +32,8 @@ from tests.conftest import DATA
 DRIVE = DATA / "drive0708"
 LAT = math.radians(45.0)
 NOISE = ImuNoise.from_kfgins(0.6, 0.4, 50.0, 2000.0, 1.0)
-P0 = np.diag(np.concatenate([[1.0] * 3, [0.1] * 3, [0.01] * 3, [1e-4] * 3, [0.05] * 3]) ** 2)
+P0 = np.diag(np.concatenate([[1.0] * 3, [0.1] * 3, [0.01] * 3, [1e-4] * 3, [0.05] * 3,
+                             [1e-3] * 6]) ** 2)
 
 
 def at_rest(t: float = 0.0) -> NavState:
@@ -64,7 +65,8 @@ def test_gnss_pulls_a_wrong_start_onto_the_truth(integration: Integration) -> No
     start = at_rest()
     start.lat_rad += 10.0 / radii_m(LAT)[0]  # 10 m north of the truth
     ins = ins_filter(start, np.diag(np.r_[[10.0] * 3, [0.1] * 3, [0.01] * 3, [1e-4] * 3,
-                                          [0.05] * 3] ** 2), NOISE, None, integration)
+                                          [0.05] * 3, [1e-3] * 6] ** 2), NOISE, None,
+                     integration)
     dtheta, dvel = resting_increments(0.01)
     imu = np.array([[0.01 * k, *dtheta, *dvel] for k in range(1, 3001)])
     fixes = [GnssFix(float(t), LAT, 0.0, 100.0, np.array([0.5, 0.5, 1.0]))
