@@ -7,12 +7,15 @@ gyro + odometer drive (100 Hz IMU, 50 Hz odometer, 1 Hz GPS).
 - throughput: sessions send their packets as fast as the server answers (batches of 100);
   packets per second accepted, end to end.
 - real rate: every 0.1 s each session sends the packets of that 0.1 s (10 IMU, 5 odometer,
-  and the GPS fix when there is one); latency is from sending a message that holds a GPS fix
-  to receiving the reply with its matched position.
+  and the GPS fix when there is one), each session from its own point of the drive (up to
+  60 s in) and its own offset within the second; latency is from sending a message that
+  holds a GPS fix to receiving the reply with its matched position.
 - GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
 - memory: the server's resident memory before and after opening the sessions, per session.
 
-The server runs in one process, so it uses one core; the load generator takes the other.
+The server runs in one process, so it uses one core; the load generator takes the other (its
+garbage collector is off while it measures latency, as its pauses would be counted as the
+server's).
 
     python bench/service_load.py [--map maps/monaco.db] [--seconds 20]
         [--real-rate 1,100,200] [--gps-only 1000] [--throughput 1,4]
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import json
 import os
 import shutil
@@ -38,6 +42,8 @@ from report import RESULTS, print_table, write_json
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from roadgraph import RoadGraph
 from tests.api.server import Server, start_server
+
+START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
 
 
 def rss_mb(pid: int) -> float:
@@ -127,11 +133,18 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
                                         max_size=None) for sid in ids]
     start = time.perf_counter() + 0.5
     cpu = cpu_s(server.process.pid)
+    client_cpu = time.process_time()
+    gc.collect()
+    gc.disable()  # this process's full collections (100+ ms with 1,000 sockets) are not the
+    # server's latency: keep them out of the measurement
 
     async def one(k: int, ws: Any) -> None:
         nonlocal late, sent
         offset = k / len(sockets)  # spread the sessions' GPS fixes over the second
-        for i, batch in enumerate(ticks[:int(seconds * 10)]):
+        # and start each session at its own point of the drive: in step, every session would
+        # reach the same junction (and the matcher's costliest moments) in the same second
+        first = (k * 37) % START_SPREAD_TICKS
+        for i, batch in enumerate(ticks[first:first + int(seconds * 10)]):
             if not batch:
                 continue
             due = start + i * 0.1 + offset
@@ -148,6 +161,8 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
 
     await asyncio.gather(*(one(k, ws) for k, ws in enumerate(sockets)))
     elapsed = time.perf_counter() - start  # longer than planned when the server fell behind
+    gc.enable()
+    client_busy = (time.process_time() - client_cpu) / elapsed
     after = rss_mb(server.process.pid)
     busy = (cpu_s(server.process.pid) - cpu) / elapsed
     for ws in sockets:
@@ -158,7 +173,8 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
             "seconds": elapsed, "packets_per_s": sent / elapsed,
             "latency_p50_ms": statistics.median(lat_ms),
             "latency_p99_ms": lat_ms[min(len(lat_ms) - 1, int(0.99 * len(lat_ms)))],
-            "late_ticks": late, "server_cpu": busy, "rss_before_mb": before, "rss_after_mb": after,
+            "late_ticks": late, "server_cpu": busy, "client_cpu": client_busy,
+            "rss_before_mb": before, "rss_after_mb": after,
             "mb_per_session": (after - before) / sessions}
 
 
@@ -170,7 +186,7 @@ def main() -> None:
     parser.add_argument("--gps-only", default="1000", help="session counts")
     parser.add_argument("--throughput", default="1,4", help="session counts")
     args = parser.parse_args()
-    packets = drive_packets(args.map, max(60.0, args.seconds + 5.0))
+    packets = drive_packets(args.map, args.seconds + START_SPREAD_TICKS / 10 + 5.0)
     gps_ticks = [[p for p in batch if p["kind"] == "gps"] for batch in tick_batches(packets)]
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / args.map.name
