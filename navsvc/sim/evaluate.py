@@ -10,7 +10,8 @@ estimate's time. Errors are horizontal distances in metres.
   as a share of the distance driven in the gap;
 * heading error while moving;
 * share of epochs on the right road (within 5 m of an intersection either road counts) and
-  intersections traversed correctly (when the run matched positions to edges).
+  intersections traversed correctly: the road matched most while on each new road, leaving
+  out the epochs within 5 m of its ends (when the run matched positions to edges).
 """
 
 from __future__ import annotations
@@ -159,15 +160,23 @@ def _outages(gps_t: np.ndarray, truth: _Truth, est_t: np.ndarray,
 
 def _intersections(truth: _Truth, est_t: np.ndarray,
                    est_road: list[frozenset[int] | None]) -> tuple[int, int]:
-    """Each time the truth enters a new road: did the run mostly match that road there?"""
+    """Each time the truth enters a new road: did the run mostly match that road there?
+
+    Epochs within NODE_TOLERANCE_M of either end of the road are left out of the vote when
+    others remain, as for the right-road share: a car standing on the intersection itself
+    (stopped at the line) is on both roads and says nothing of the road it takes."""
     changes = truth.changes.tolist()
+    est_s = np.interp(est_t, truth.t, truth.s_m) if len(est_t) else np.zeros(0)
     correct = total = 0
     for k, i in enumerate(changes):
-        end = truth.t[changes[k + 1]] if k + 1 < len(changes) else truth.t[-1]
-        span = [road for t, road in zip(est_t, est_road) if truth.t[i] <= t < end]
-        matched = [road for road in span if road is not None]
-        if not matched:
+        last = changes[k + 1] if k + 1 < len(changes) else len(truth.t) - 1
+        span = [(s, road) for t, s, road in zip(est_t, est_s, est_road)
+                if truth.t[i] <= t < truth.t[last] and road is not None]
+        if not span:
             continue
+        inside = [road for s, road in span if truth.s_m[i] + NODE_TOLERANCE_M <= s
+                  <= truth.s_m[last] - NODE_TOLERANCE_M]
+        matched = inside or [road for _, road in span]
         total += 1
         correct += Counter(matched).most_common(1)[0][0] == truth.road[i]
     return correct, total

@@ -67,6 +67,34 @@ def test_heading_wraps_and_wrong_road_counts() -> None:
     assert (e.intersections_correct, e.intersections_total) == (0, 1)
 
 
+def test_standing_on_the_intersection_does_not_decide_the_road_taken() -> None:
+    """The car stops on the node for 50 s, already on the next road by the truth; a run that
+    stays on the old road while standing and takes the right one on leaving is correct."""
+    drive = []
+    for i in range(1301):
+        t = i / 10
+        y = 10.0 * min(t, 50.0) + 10.0 * max(t - 100.0, 0.0)
+        road = (1, 2) if t < 50 else (2, 3)
+        lat, lon = _ll(0.0, y)
+        drive.append({"t": t, "kind": "truth", "lat": lat, "lon": lon, "heading_deg": 0.0,
+                      "speed_mps": 0.0 if 50 <= t < 100 else 10.0, "u": road[0],
+                      "v": road[1]})
+
+    def run(moved_on: tuple[int, int]) -> list[dict]:
+        out = []
+        for r in drive[::10]:
+            edge = (1, 2) if r["t"] < 101 else moved_on
+            out.append({"t": r["t"], "lat": r["lat"], "lon": r["lon"], "fused_lat": r["lat"],
+                        "fused_lon": r["lon"], "heading_deg": 0.0,
+                        "edge": {"u": edge[0], "v": edge[1]}})
+        return out
+
+    e = evaluate(drive, run(moved_on=(2, 3)))
+    assert (e.intersections_correct, e.intersections_total) == (1, 1)
+    e = evaluate(drive, run(moved_on=(2, 7)))
+    assert (e.intersections_correct, e.intersections_total) == (0, 1)
+
+
 def test_no_edges_means_no_road_share() -> None:
     est = _estimates(1.0, 0.0, 50)
     for r in est:
