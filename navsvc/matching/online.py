@@ -14,7 +14,9 @@ The vehicle is on one directed edge of the intersection graph at a time:
   (further than ``r_a`` from the node) commits to it.
 * **off road / lost**: far from the current road for a while (a car park) → ``off_road`` and
   a new start-up search each epoch; heading against the road for a while → ``lost``, then
-  start-up.
+  start-up; further than ``poor_fit_sigmas`` of road and position sigma for a while (the
+  wrong branch of a narrow fork, running beside the right one) → start-up, which takes the
+  better road.
 
 Ambiguity radius (the seed: expected drift times the map's longest adjacent-node distance;
 also at least ``k`` sigma of the filter's position)::
@@ -53,6 +55,8 @@ class MatcherConfig:
     off_road_after_s: float = 3.0  # ... for this long → off road
     lost_heading_rad: float = math.radians(60.0)  # against the road ...
     lost_after_s: float = 4.0  # ... for this long while moving → lost
+    poor_fit_sigmas: float = 3.0  # further from the road than this many sigmas ...
+    poor_fit_after_s: float = 2.0  # ... for this long → start-up (a better road may be near)
     min_speed_for_heading_mps: float = 2.0
 
     def __post_init__(self) -> None:
@@ -81,6 +85,7 @@ class MatcherState:
     region: _Region | None = None
     far_since_t: float | None = None
     against_since_t: float | None = None
+    poor_fit_since_t: float | None = None
     off_road: bool = False
 
 
@@ -144,6 +149,15 @@ class OnlineMatcher:
             if against else None
         if s.far_since_t is not None and e.t - s.far_since_t >= c.off_road_after_s:
             s.edge = None
+            return self._start(e)
+        # the wrong one of two roads that fork at a small angle: no heading error, and for a
+        # long way no further than off_road_distance_m, but clearly off it for its sigma
+        sigma = math.hypot(c.road_sigma_m, e.position_sigma_m)
+        poor = s.region is None and proj.distance_m > c.poor_fit_sigmas * sigma
+        s.poor_fit_since_t = (s.poor_fit_since_t if s.poor_fit_since_t is not None else e.t) \
+            if poor else None
+        if s.poor_fit_since_t is not None and e.t - s.poor_fit_since_t >= c.poor_fit_after_s:
+            s.edge, s.poor_fit_since_t = None, None
             return self._start(e)
         if s.against_since_t is not None and e.t - s.against_since_t >= c.lost_after_s:
             s.edge, s.region, s.against_since_t = None, None, None

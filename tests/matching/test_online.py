@@ -2,6 +2,7 @@
 
 import math
 
+import networkx as nx
 import numpy as np
 import pytest
 
@@ -102,3 +103,25 @@ def test_lost_when_moving_against_the_road() -> None:
     states = [matcher.update(estimate(0.1 * k, 0.0, -80.0 + 0.8 * k, 90.0)).state
               for k in range(1, 50)]
     assert MatchState.LOST in states
+
+
+def test_the_wrong_branch_of_a_narrow_fork_is_left_for_the_right_one() -> None:
+    """Two roads leave a node 12° apart: matched to the wrong one, the vehicle is never far
+    enough off it (30 m) nor heading against it to be off road or lost, but after a couple of
+    seconds clearly off it for its sigma the matcher starts up again on the right one."""
+    g = nx.MultiDiGraph()
+    fork = math.radians(12.0)
+    pos = {0: (0.0, 0.0), 1: (0.0, 300.0), 2: (300.0 * math.sin(fork), 300.0 * math.cos(fork))}
+    for n, (dx, dy) in pos.items():
+        g.add_node(n, x=X0 + dx, y=Y0 + dy)
+    g.add_edge(0, 1, name="north")
+    g.add_edge(0, 2, name="north-north-east")
+    matcher = OnlineMatcher(RoadGraph.from_networkx(g, FRAME))
+    assert edge_of(matcher.update(estimate(0.0, 0.0, 10.0, 0.0))) == (0, 1)  # the wrong one
+    matched = {}
+    for k in range(1, 300):  # along the 12° road at 8 m/s, 10 Hz
+        d = 10.0 + 0.8 * k
+        p = matcher.update(estimate(0.1 * k, d * math.sin(fork), d * math.cos(fork), 12.0))
+        matched[round(d)] = edge_of(p)
+    assert matched[50] == (0, 1)  # 8 m off: within its sigma, no reason to doubt yet
+    assert all(matched[d] == (0, 2) for d in range(110, 240, 10))
