@@ -58,6 +58,9 @@ class MatcherConfig:
     poor_fit_sigmas: float = 3.0  # further from the road than this many sigmas ...
     poor_fit_after_s: float = 2.0  # ... for this long → start-up (a better road may be near)
     min_speed_for_heading_mps: float = 2.0
+    # below that speed the heading still counts while the filter is this sure of it (a gyro
+    # holds it through a stop; a GPS course does not)
+    still_heading_sigma_rad: float = math.radians(5.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_radius_m <= self.max_radius_m:
@@ -233,16 +236,21 @@ class OnlineMatcher:
                               candidates)
 
     # --- scoring and output --------------------------------------------------------------
+    def _heading_usable(self, e: FusedEstimate) -> bool:
+        c = self.config
+        return e.speed_mps >= c.min_speed_for_heading_mps or \
+            e.heading_sigma_rad <= c.still_heading_sigma_rad
+
     def _heading_error(self, e: FusedEstimate, proj: EdgeProjection) -> float:
-        if e.speed_mps < self.config.min_speed_for_heading_mps:
-            return 0.0  # a stopped vehicle's heading says little about the road
+        if not self._heading_usable(e):
+            return 0.0  # a stopped vehicle's GPS course says little about the road
         return wrap_angle_rad(e.heading_rad - proj.bearing_rad)
 
     def _likelihood(self, e: FusedEstimate, proj: EdgeProjection, angle_error_rad: float) -> float:
         c = self.config
         sigma_d2 = c.road_sigma_m ** 2 + e.position_sigma_m ** 2
         sigma_h = math.hypot(c.turn_sigma_rad, e.heading_sigma_rad)
-        if e.speed_mps < c.min_speed_for_heading_mps:
+        if not self._heading_usable(e):
             angle_error_rad = 0.0
         return math.exp(-0.5 * proj.distance_m ** 2 / sigma_d2
                         - 0.5 * (angle_error_rad / sigma_h) ** 2)
