@@ -11,7 +11,9 @@ The vehicle is on one directed edge of the intersection graph at a time:
   updated from the distance to the road and from **turn detection**: the heading change
   accumulated since entering the region against the road's own change of direction (which
   cancels a constant heading error). The most probable road is reported; leaving the region
-  (further than ``r_a`` from the node) commits to it.
+  (further than ``r_a`` from the node) commits to it. While the vehicle stands the
+  probabilities hold: a standing car repeats its position and tells nothing new, and fixes
+  scattered about it would otherwise wear away what its turn showed.
 * **off road / lost**: far from the current road for a while (a car park) → ``off_road`` and
   a new start-up search each epoch; heading against the road for a while → ``lost``, then
   start-up; further than ``poor_fit_sigmas`` of road and position sigma for a while (the
@@ -58,9 +60,6 @@ class MatcherConfig:
     poor_fit_sigmas: float = 3.0  # further from the road than this many sigmas ...
     poor_fit_after_s: float = 2.0  # ... for this long → start-up (a better road may be near)
     min_speed_for_heading_mps: float = 2.0
-    # below that speed the heading still counts while the filter is this sure of it (a gyro
-    # holds it through a stop; a GPS course does not)
-    still_heading_sigma_rad: float = math.radians(5.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_radius_m <= self.max_radius_m:
@@ -201,6 +200,8 @@ class OnlineMatcher:
         assert region is not None and s.edge is not None
         turned = wrap_angle_rad(e.heading_rad - region.entry_heading_rad)
         projections = {h: self.graph.project(h, e.x_m, e.y_m) for h in region.probabilities}
+        if e.speed_mps < c.min_speed_for_heading_mps:  # standing: nothing new to learn
+            return self._report(e, projections)
         posterior = {}
         for h, p in projections.items():
             expected = wrap_angle_rad(p.bearing_rad - region.entry_road_bearing_rad)
@@ -222,6 +223,14 @@ class OnlineMatcher:
                 self._enter_region(e, projections[best])
                 return self._in_region(e, projections[best])
             return self._on_road(e, projections[best])
+        return self._report(e, projections)
+
+    def _report(self, e: FusedEstimate,
+                projections: dict[EdgeKey, EdgeProjection]) -> MatchedPosition:
+        """The region's most probable road (with the others when not confident)."""
+        c, region = self.config, self.state.region
+        assert region is not None
+        best = max(region.probabilities, key=region.probabilities.__getitem__)
         confident = region.probabilities[best] >= c.confident_probability
         if not confident:
             ranked = sorted(region.probabilities.items(), key=lambda kv: -kv[1])
@@ -236,21 +245,16 @@ class OnlineMatcher:
                               candidates)
 
     # --- scoring and output --------------------------------------------------------------
-    def _heading_usable(self, e: FusedEstimate) -> bool:
-        c = self.config
-        return e.speed_mps >= c.min_speed_for_heading_mps or \
-            e.heading_sigma_rad <= c.still_heading_sigma_rad
-
     def _heading_error(self, e: FusedEstimate, proj: EdgeProjection) -> float:
-        if not self._heading_usable(e):
-            return 0.0  # a stopped vehicle's GPS course says little about the road
+        if e.speed_mps < self.config.min_speed_for_heading_mps:
+            return 0.0  # a stopped vehicle's heading says little about the road
         return wrap_angle_rad(e.heading_rad - proj.bearing_rad)
 
     def _likelihood(self, e: FusedEstimate, proj: EdgeProjection, angle_error_rad: float) -> float:
         c = self.config
         sigma_d2 = c.road_sigma_m ** 2 + e.position_sigma_m ** 2
         sigma_h = math.hypot(c.turn_sigma_rad, e.heading_sigma_rad)
-        if not self._heading_usable(e):
+        if e.speed_mps < c.min_speed_for_heading_mps:
             angle_error_rad = 0.0
         return math.exp(-0.5 * proj.distance_m ** 2 / sigma_d2
                         - 0.5 * (angle_error_rad / sigma_h) ** 2)

@@ -125,3 +125,22 @@ def test_the_wrong_branch_of_a_narrow_fork_is_left_for_the_right_one() -> None:
         matched[round(d)] = edge_of(p)
     assert matched[50] == (0, 1)  # 8 m off: within its sigma, no reason to doubt yet
     assert all(matched[d] == (0, 2) for d in range(110, 240, 10))
+
+
+def test_standing_in_the_region_keeps_what_the_turn_showed() -> None:
+    """Turned east into the junction, the car stops 2 m in; its positions scatter nearer the
+    north arm. Standing tells nothing new, so the east road stays the one reported."""
+    matcher = OnlineMatcher(cross_graph())
+    t = 0.0
+    for k in range(113):  # north up to the junction at 8 m/s, 10 Hz
+        matcher.update(estimate(t, 0.0, min(-90.0 + 0.8 * k, 0.0), 0.0))
+        t += 0.1
+    for k in range(1, 4):  # the turn: a few metres east
+        matcher.update(estimate(t, 0.8 * k, 0.0, 90.0))
+        t += 0.1
+    standing = []
+    for k in range(60):
+        standing.append(matcher.update(estimate(t, 2.0, 2.5 if k % 2 else 1.5, 90.0,
+                                                speed=0.0)))
+        t += 0.1
+    assert all(edge_of(p) == (0, 2) for p in standing)
