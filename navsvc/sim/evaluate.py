@@ -164,7 +164,8 @@ def _intersections(truth: _Truth, est_t: np.ndarray,
 
     Epochs within NODE_TOLERANCE_M of either end of the road are left out of the vote when
     others remain, as for the right-road share: a car standing on the intersection itself
-    (stopped at the line) is on both roads and says nothing of the road it takes."""
+    (stopped at the line) is on both roads and says nothing of the road it takes. A road the
+    truth never gets NODE_TOLERANCE_M along (the drive ends on the node) was not traversed."""
     changes = truth.changes.tolist()
     est_s = np.interp(est_t, truth.t, truth.s_m) if len(est_t) else np.zeros(0)
     correct = total = 0
@@ -172,7 +173,7 @@ def _intersections(truth: _Truth, est_t: np.ndarray,
         last = changes[k + 1] if k + 1 < len(changes) else len(truth.t) - 1
         span = [(s, road) for t, s, road in zip(est_t, est_s, est_road)
                 if truth.t[i] <= t < truth.t[last] and road is not None]
-        if not span:
+        if not span or truth.s_m[last] - truth.s_m[i] < NODE_TOLERANCE_M:
             continue
         inside = [road for s, road in span if truth.s_m[i] + NODE_TOLERANCE_M <= s
                   <= truth.s_m[last] - NODE_TOLERANCE_M]

@@ -93,6 +93,10 @@ def test_standing_on_the_intersection_does_not_decide_the_road_taken() -> None:
     assert (e.intersections_correct, e.intersections_total) == (1, 1)
     e = evaluate(drive, run(moved_on=(2, 7)))
     assert (e.intersections_correct, e.intersections_total) == (0, 1)
+    # the drive ends while the car still stands on the node: the road was not traversed
+    standing = [r for r in drive if r["t"] < 99.0]
+    e = evaluate(standing, [r for r in run(moved_on=(2, 3)) if r["t"] < 99.0])
+    assert e.intersections_total == 0
 
 
 def test_no_edges_means_no_road_share() -> None:
