@@ -25,9 +25,11 @@ def _segment_json(graph: RoadGraph, seg: RouteSegment) -> dict[str, Any]:
     for i, r in enumerate(records):
         start = seg.start_offset_m if i == 0 else 0.0
         end = seg.end_offset_m if i == len(records) - 1 else r.length_m
-        line = LineString(r.coords)
-        piece = substring(line, start, max(end, start))
-        coords = np.asarray(piece.coords) if not piece.is_empty else r.coords[:1]
+        if start <= 0.0 and end >= r.length_m:  # the whole edge (all but the two ends)
+            coords = r.coords
+        else:
+            piece = substring(LineString(r.coords), start, max(end, start))
+            coords = np.asarray(piece.coords) if not piece.is_empty else r.coords[:1]
         parts.append(coords if not parts else coords[1:])
     xy = np.vstack(parts)
     lonlat = graph.frame.coords_to_wgs84(xy)
@@ -37,8 +39,7 @@ def _segment_json(graph: RoadGraph, seg: RouteSegment) -> dict[str, Any]:
         "osm_way_ids": _collapse([w for r in records for w in r.osm_way_ids]),
         "streets": _collapse([r.name or "" for r in records]),
         "length_m": round(seg.length_m, 2),
-        "geometry": {"type": "LineString",
-                     "coordinates": [[round(lo, 7), round(la, 7)] for lo, la in lonlat]},
+        "geometry": {"type": "LineString", "coordinates": np.round(lonlat, 7).tolist()},
     }
 
 
@@ -63,15 +64,16 @@ def match_trace(graph: RoadGraph, fixes: list[TraceFix],
         raise TraceError(f"no point of the trace is within {radius:g} m of a road of the map "
                          f"{graph.map_id!r} (is it the right map?)")
     on_road = [m.projection for m in result.points if m.projection is not None]
-    matched_lonlat = iter(graph.frame.coords_to_wgs84(
-        np.array([(p.x_m, p.y_m) for p in on_road], dtype=np.float64).reshape(-1, 2)).tolist())
+    matched_lonlat = iter(np.round(graph.frame.coords_to_wgs84(
+        np.array([(p.x_m, p.y_m) for p in on_road], dtype=np.float64).reshape(-1, 2)),
+        7).tolist())
     per_point = []
     for f, m in zip(fixes, result.points):
         matched = None
         if m.projection is not None:
             lon, lat = next(matched_lonlat)
             e = m.projection.edge
-            matched = {"lat": round(lat, 7), "lon": round(lon, 7),
+            matched = {"lat": lat, "lon": lon,
                        "edge": {"u": e.u, "v": e.v, "key": e.key},
                        "distance_m": round(m.projection.distance_m, 2),
                        "segment": m.segment}
