@@ -205,11 +205,10 @@ def mechanise(s: NavState, t: float, dtheta: Array, dvel: Array,
               method: Mechanisation = Mechanisation.FIRST_ORDER,
               earth: EarthModel = EarthModel.WGS84) -> tuple[NavState, Array]:
     """Advance the navigation state by one IMU interval; return it and the specific force in
-    the navigation frame (for the error model). Bias and scale errors are removed from the
-    increments first."""
+    the navigation frame (for the error model). The increments are compensated already
+    (:meth:`NavState.compensate`)."""
     rotating = 1.0 if earth == EarthModel.WGS84 else 0.0
     dt = t - s.t
-    dtheta, dvel = s.compensate(dtheta, dvel, dt)
     out = s.copy()
     out.t = t
     if method == Mechanisation.RK4:
@@ -333,7 +332,8 @@ class InsFilter:
         self._check_sample(t, dtheta, dvel)
         dt = t - self.state.t
         dtheta_c, dvel_c = self.state.compensate(dtheta, dvel, dt)
-        self.state, f_n = mechanise(self.state, t, dtheta, dvel, self.mechanisation, self.earth)
+        self.state, f_n = mechanise(self.state, t, dtheta_c, dvel_c, self.mechanisation,
+                                    self.earth)
         s = self.state
         phi = _transition(s.lat_rad, s.h_m, s.v_ned, s.c_bn, f_n, dtheta_c / dt, dvel_c / dt,
                           dt, self.noise.bias_corr_time_s, self._rotating)
@@ -450,18 +450,23 @@ class InsFilter:
         return True
 
     def _apply(self, h: Array, y: Array, r: Array, s_mat: Array) -> None:
-        """The Kalman update (Joseph form), then the feedback of the error if so integrated."""
+        """The Kalman update (Joseph form), then the correction of the estimate."""
         k = self.P @ h.T @ np.linalg.inv(s_mat)
         ikh = np.eye(N_ERR) - k @ h
-        self.P = ikh @ self.P @ ikh.T + k @ r @ k.T
-        self.dx = self.dx + k @ y
+        p = ikh @ self.P @ ikh.T + k @ r @ k.T
+        self.P = 0.5 * (p + p.T)
+        self._correct(k @ y)
+
+    def _correct(self, dx: Array) -> None:
+        """Take an estimated error: fed back at once (feedback) or kept (feedforward)."""
+        self.dx = self.dx + dx
         if self.integration == Integration.FEEDBACK:
             self._feed_back()
 
     def output(self) -> NavState:
         """The navigation solution: the state itself (feedback) or the state less the
         estimated error (feedforward)."""
-        if self.integration == Integration.FEEDBACK:
+        if self.integration != Integration.FEEDFORWARD:
             return self.state
         return _corrected(self.state, self.dx)
 
@@ -472,7 +477,6 @@ class InsFilter:
         self.state.gyro_scale = self.state.gyro_scale + self.dx[SG]
         self.state.accel_scale = self.state.accel_scale + self.dx[SA]
         self.dx = np.zeros(N_ERR)
-
 
 
 def _earth_rate_b(s: NavState, rotating: float) -> Array:

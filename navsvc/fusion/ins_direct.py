@@ -140,9 +140,8 @@ class DirectInsFilter(InsFilter):
                  earth: EarthModel = EarthModel.WGS84) -> None:
         """``p0`` as for the other modes (position in NED metres, attitude per axis); it is
         carried into the state's units."""
-        super().__init__(state, p0, noise, lever_arm_b_m, Integration.FEEDBACK, mechanisation,
+        super().__init__(state, p0, noise, lever_arm_b_m, Integration.DIRECT, mechanisation,
                          earth)
-        self.integration = Integration.DIRECT
         scale = np.ones(N_ERR)
         scale[POS] = 1.0 / _metres_per_unit(state)
         self.P = p0 * np.outer(scale, scale)
@@ -159,7 +158,8 @@ class DirectInsFilter(InsFilter):
         self.P = _propagate_direct(self.P, total_state(before), dtheta / dt, dvel / dt, dt,
                                    self.noise.bias_corr_time_s, self._rotating,
                                    self._q_density)
-        self.state, _ = mechanise(before, t, dtheta, dvel, self.mechanisation, self.earth)
+        self.state, _ = mechanise(before, t, *before.compensate(dtheta, dvel, dt),
+                                  self.mechanisation, self.earth)
         decay = 1.0 - dt / self.noise.bias_corr_time_s
         self.state.gyro_bias_rps = before.gyro_bias_rps * decay
         self.state.accel_bias_mps2 = before.accel_bias_mps2 * decay
@@ -170,16 +170,9 @@ class DirectInsFilter(InsFilter):
         m = _metres_per_unit(self.state)
         return self.P[POS, POS] * np.outer(m, m)
 
-    def heading_sigma_rad(self) -> float:
-        return float(math.sqrt(self.P[8, 8]))
-
-    def _apply(self, h: Array, y: Array, r: Array, s_mat: Array) -> None:
-        """The Kalman update (Joseph form), added to the state."""
-        k = self.P @ h.T @ np.linalg.inv(s_mat)
-        ikh = np.eye(N_ERR) - k @ h
-        p = ikh @ self.P @ ikh.T + k @ r @ k.T
-        self.P = 0.5 * (p + p.T)
-        x = total_state(self.state) - k @ y
+    def _correct(self, dx: Array) -> None:
+        """The estimated error comes off the state itself."""
+        x = total_state(self.state) - dx
         if not np.all(np.isfinite(x)):
             raise FloatingPointError("INS correction produced a non-finite state")
         x[7] = float(np.clip(x[7], -MAX_PITCH_RAD, MAX_PITCH_RAD))
