@@ -89,14 +89,14 @@ class SegmentGrid:
                            radius_m: float) -> list[tuple[int, float]]:
         if segs.size == 0:
             return []
-        owners, distances = _nearest_per_owner(segs, x_m, y_m, radius_m, self._ax, self._ay,
-                                               self._dx, self._dy, self._inv_len_sq,
-                                               self._owner)
+        owners, distances = _nearest_segment_per_owner(
+            segs, x_m, y_m, radius_m, self._ax, self._ay, self._dx, self._dy,
+            self._inv_len_sq, self._owner)
         return list(zip(owners.tolist(), distances.tolist()))
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest_per_owner(segs: IntArray, x_m: float, y_m: float, radius_m: float,
+def _nearest_segment_per_owner(segs: IntArray, x_m: float, y_m: float, radius_m: float,
                        ax: FloatArray, ay: FloatArray, dx: FloatArray, dy: FloatArray,
                        inv_len_sq: FloatArray, owner: IntArray
                        ) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled

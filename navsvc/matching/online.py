@@ -198,10 +198,10 @@ class OnlineMatcher:
         c, s = self.config, self.state
         region = s.region
         assert region is not None and s.edge is not None
-        turned = wrap_angle_rad(e.heading_rad - region.entry_heading_rad)
         projections = {h: self.graph.project(h, e.x_m, e.y_m) for h in region.probabilities}
         if e.speed_mps < c.min_speed_for_heading_mps:  # standing: nothing new to learn
             return self._report(e, projections)
+        turned = wrap_angle_rad(e.heading_rad - region.entry_heading_rad)
         posterior = {}
         for h, p in projections.items():
             expected = wrap_angle_rad(p.bearing_rad - region.entry_road_bearing_rad)
