@@ -33,12 +33,11 @@ def nearest_road_baseline(graph: RoadGraph, drive: list[dict[str, Any]]) -> list
         if r["kind"] != "gps":
             continue
         x, y = graph.frame.to_local(r["lon"], r["lat"])
-        near = graph.nearest_edge(x, y)
-        p = graph.project(near.edge, x, y)
+        p = graph.nearest_edge(x, y)
         lon, lat = graph.frame.to_wgs84(p.x_m, p.y_m)
         out.append({"t": r["t"], "lat": lat, "lon": lon, "fused_lat": r["lat"],
                     "fused_lon": r["lon"], "heading_deg": r.get("heading_deg", 0.0),
-                    "edge": {"u": near.edge.u, "v": near.edge.v}})
+                    "edge": {"u": p.edge.u, "v": p.edge.v}})
     return out
 
 

@@ -13,11 +13,11 @@ from roadgraph.errors import (
     SchemaVersionError,
 )
 from roadgraph.geometry import LocalFrame
-from roadgraph.graph import EdgeKey, EdgeProjection, NearEdge, RoadGraph
+from roadgraph.graph import EdgeKey, EdgeProjection, RoadGraph
 from roadgraph.importer import import_map
 
 __all__ = [
     "EdgeKey", "EdgeProjection", "EdgeRecord", "LocalFrame", "MapDatabaseError", "MapInfo",
-    "MapSourceError", "NearEdge", "NoDrivableRoadError", "NodeRecord", "RoadGraph",
+    "MapSourceError", "NoDrivableRoadError", "NodeRecord", "RoadGraph",
     "RoadGraphError", "RoadNetwork", "SchemaVersionError", "import_map",
 ]

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
@@ -20,7 +19,7 @@ import networkx as nx
 from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork, network_from_projected
 from roadgraph.errors import RoadGraphError
 from roadgraph.geometry import LocalFrame, project_onto_polyline, turn_angle_rad
-from roadgraph.spatial import SegmentGrid
+from roadgraph.spatial import NearPolylines, SegmentGrid
 from roadgraph.store import read_network
 
 
@@ -32,16 +31,8 @@ class EdgeKey(NamedTuple):
     key: int
 
 
-class NearEdge(NamedTuple):
-    """An edge found near a point, with the distance from the point to it."""
-
-    edge: EdgeKey
-    distance_m: float
-
-
-@dataclass(frozen=True)
-class EdgeProjection:
-    """A point projected onto an edge."""
+class EdgeProjection(NamedTuple):
+    """A point projected onto an edge (a named tuple: the matchers make thousands a second)."""
 
     edge: EdgeKey
     offset_m: float  # along the edge from u
@@ -119,18 +110,23 @@ class RoadGraph:
         return edge in self._index
 
     # --- spatial -------------------------------------------------------------------------
-    def edges_near(self, x_m: float, y_m: float, radius_m: float) -> list[NearEdge]:
-        """Edges within ``radius_m`` of a point, nearest first."""
-        keys = self._keys
-        return [NearEdge(keys[i], d) for i, d in self._grid.near(x_m, y_m, radius_m)]
+    def edges_near(self, x_m: float, y_m: float, radius_m: float) -> list[EdgeProjection]:
+        """The point projected onto each edge within ``radius_m`` of it, nearest first."""
+        return self._projections(self._grid.near(x_m, y_m, radius_m))
 
-    def nearest_edge(self, x_m: float, y_m: float) -> NearEdge:
-        """The single nearest edge, however far (start-up when nothing is within a radius)."""
-        found = self._grid.nearest(x_m, y_m)
-        if found is None:
+    def nearest_edge(self, x_m: float, y_m: float) -> EdgeProjection:
+        """The point projected onto the nearest edge, however far (start-up when nothing is
+        within a radius)."""
+        found = self._projections(self._grid.nearest(x_m, y_m))
+        if not found:
             raise RoadGraphError(f"no edge near ({x_m}, {y_m}): the graph is empty or the point "
                                  "is outside what the map's projection can hold")
-        return NearEdge(self._keys[found[0]], found[1])
+        return found[0]
+
+    def _projections(self, near: NearPolylines) -> list[EdgeProjection]:
+        keys, edges = self._keys, self._edges
+        return [EdgeProjection(keys[i], offset, distance, x, y, bearing, edges[i].length_m)
+                for i, (distance, offset, x, y, bearing) in zip(near.polylines, near.closest)]
 
     def project(self, edge: EdgeKey, x_m: float, y_m: float) -> EdgeProjection:
         """Project a point onto an edge."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from navsvc.errors import TraceError
 from roadgraph import EdgeKey, EdgeProjection, RoadGraph
@@ -30,8 +31,7 @@ class HmmConfig:
     max_points: int = 20_000  # per request
 
 
-@dataclass(frozen=True)
-class TracePoint:
+class TracePoint(NamedTuple):
     t: float
     x_m: float
     y_m: float
@@ -88,25 +88,19 @@ class HmmMatcher:
     def candidates(self, p: TracePoint) -> list[EdgeProjection]:
         c = self.config
         near = self.graph.edges_near(p.x_m, p.y_m, c.search_radius_sigmas * c.sigma_m)
-        return [self.graph.project(n.edge, p.x_m, p.y_m) for n in near[:c.max_candidates]]
+        return near[:c.max_candidates]
 
-    def route_distance(self, a: EdgeProjection, b: EdgeProjection, limit_m: float,
-                       cache: dict[int, tuple[float, dict[int, float]]]) -> float:
-        """Driving distance from projection ``a`` to ``b`` (inf beyond ``limit_m``).
+    def _reach(self, source: int, limit_m: float,
+               cache: dict[int, tuple[float, dict[int, float]]]) -> dict[int, float]:
+        """Driving distance from node ``source`` to every node within ``limit_m``.
 
         ``cache`` holds one search per source node for the whole trace, with the cutoff it was
         run to; a later step that needs a longer reach searches again.
         """
-        if a.edge == b.edge and b.offset_m >= a.offset_m - 1e-6:
-            return b.offset_m - a.offset_m
-        source = a.edge.v
         found = cache.get(source)
         if found is None or found[0] < limit_m:
             found = cache[source] = (limit_m, self.graph.distances_from(source, limit_m))
-        between = found[1].get(b.edge.u)
-        if between is None or between > limit_m:
-            return math.inf
-        return a.remaining_m + between + b.offset_m
+        return found[1]
 
     def match(self, points: list[TracePoint]) -> MatchResult:
         c = self.config
@@ -148,24 +142,34 @@ class HmmMatcher:
                     point: TracePoint, cands: list[EdgeProjection], emission: list[float],
                     cache: dict[int, tuple[float, dict[int, float]]]
                     ) -> list[tuple[EdgeProjection, float, int]]:
-        """One Viterbi step: each candidate's best predecessor and score."""
+        """One Viterbi step: each candidate's best predecessor and score.
+
+        The route distance from ``q`` to ``p`` is along ``q``'s edge when ``p`` lies ahead on
+        it, else the rest of ``q``'s edge, the shortest path to ``p``'s edge and ``p``'s
+        offset; inf beyond the search limit."""
         c = self.config
         straight = _distance(prev, point)
         limit = c.max_route_factor * straight + 500.0
-        new_layer = []
-        for p, e in zip(cands, emission):
-            best, back = -math.inf, -1
-            for k, (q, score, _) in enumerate(layer):
-                if score == -math.inf:
-                    continue
-                route = self.route_distance(q, p, limit, cache)
-                if route == math.inf:
-                    continue
+        best = [-math.inf] * len(cands)
+        back = [-1] * len(cands)
+        for k, (q, score, _) in enumerate(layer):
+            if score == -math.inf:
+                continue
+            reach = self._reach(q.edge.v, limit, cache)
+            remaining = q.remaining_m
+            for j, p in enumerate(cands):
+                if p.edge == q.edge and p.offset_m >= q.offset_m - 1e-6:
+                    route = p.offset_m - q.offset_m
+                else:
+                    between = reach.get(p.edge.u)
+                    if between is None or between > limit:
+                        continue
+                    route = remaining + between + p.offset_m
                 s = score - abs(route - straight) / c.beta_m
-                if s > best:
-                    best, back = s, k
-            new_layer.append((p, best + e if back >= 0 else -math.inf, back))
-        return new_layer
+                if s > best[j]:
+                    best[j], back[j] = s, k
+        return [(p, b + e if k >= 0 else -math.inf, k)
+                for p, b, e, k in zip(cands, best, emission, back)]
 
     @staticmethod
     def _backtrack(history: list[tuple[int, list[tuple[EdgeProjection, float, int]]]]

@@ -128,8 +128,7 @@ class OnlineMatcher:
         lo, hi = c.startup_radius_m
         radius = min(max(3.0 * e.position_sigma_m + 15.0, lo), hi)
         best: tuple[float, EdgeProjection] | None = None
-        for near in self.graph.edges_near(e.x_m, e.y_m, radius):
-            proj = self.graph.project(near.edge, e.x_m, e.y_m)
+        for proj in self.graph.edges_near(e.x_m, e.y_m, radius):
             score = self._likelihood(e, proj, self._heading_error(e, proj))
             if best is None or score > best[0]:
                 best = (score, proj)

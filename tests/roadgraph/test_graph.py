@@ -94,6 +94,14 @@ def test_edges_near_matches_brute_force(sample_graph: RoadGraph, fx: float, fy: 
     assert {ne.edge for ne in near} <= set(expected)
     for ne in near:
         assert ne.distance_m == pytest.approx(expected[ne.edge], abs=1e-6)
+        # the closest point found by the grid is the one a projection onto the edge finds
+        p = sample_graph.project(ne.edge, x, y)
+        assert (ne.x_m, ne.y_m) == pytest.approx((p.x_m, p.y_m), abs=1e-6)
+        assert ne.offset_m == pytest.approx(p.offset_m, abs=1e-6)
+        assert ne.length_m == p.length_m
+        at_vertex = np.hypot(*(sample_graph.edge(ne.edge).coords - (p.x_m, p.y_m)).T).min()
+        # the bearing is the holding segment's: at a vertex, rounding may pick either one
+        assert ne.bearing_rad == pytest.approx(p.bearing_rad) or at_vertex < 1e-6
     dists = [ne.distance_m for ne in near]
     assert dists == sorted(dists)
 
