@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -102,8 +103,7 @@ class LocalFrame:
         return np.column_stack([x, y]).astype(np.float64)
 
 
-@dataclass(frozen=True)
-class PolylineProjection:
+class PolylineProjection(NamedTuple):
     """Where a point falls on a polyline: the closest point and the road direction there."""
 
     offset_m: float  # distance along the polyline from its first vertex to the closest point
@@ -119,9 +119,7 @@ def project_onto_polyline(coords: FloatArray, x_m: float, y_m: float) -> Polylin
 
     Zero-length segments are allowed; the bearing then comes from the nearest non-degenerate one.
     """
-    offset, dist, px, py, bearing, i = _project(coords, x_m, y_m)
-    return PolylineProjection(offset_m=offset, distance_m=dist, x_m=px, y_m=py,
-                              bearing_rad=normalize_bearing_rad(bearing), segment_index=i)
+    return PolylineProjection(*_project(coords, x_m, y_m))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -147,7 +145,10 @@ def _project(coords: FloatArray, x_m: float, y_m: float
     dx, dy = coords[j + 1, 0] - coords[j, 0], coords[j + 1, 1] - coords[j, 1]
     px = coords[best_i, 0] + best_t * (coords[best_i + 1, 0] - coords[best_i, 0])
     py = coords[best_i, 1] + best_t * (coords[best_i + 1, 1] - coords[best_i, 1])
-    return best_off, math.sqrt(best_d2), px, py, math.atan2(dx, dy), best_i
+    bearing = math.atan2(dx, dy)  # to [0, 2π) as normalize_bearing_rad does
+    if bearing < 0.0:
+        bearing = bearing + TWO_PI if bearing + TWO_PI < TWO_PI else 0.0
+    return best_off, math.sqrt(best_d2), px, py, bearing, best_i
 
 
 @numba.njit(cache=True, nogil=True)

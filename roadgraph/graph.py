@@ -15,11 +15,13 @@ from pathlib import Path
 from typing import NamedTuple
 
 import networkx as nx
+import numba
+import numpy as np
 
 from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork, network_from_projected
 from roadgraph.errors import RoadGraphError
-from roadgraph.geometry import LocalFrame, project_onto_polyline, turn_angle_rad
-from roadgraph.spatial import NearPolylines, SegmentGrid
+from roadgraph.geometry import FloatArray, LocalFrame, project_onto_polyline, turn_angle_rad
+from roadgraph.spatial import IntArray, NearPolylines, SegmentGrid
 from roadgraph.store import read_network
 
 
@@ -61,7 +63,9 @@ class RoadGraph:
         self._keys = list(self._index)
         self._grid = SegmentGrid([e.coords for e in self._edges])
         self.graph = self._to_networkx()
-        self._successors = self._successor_lists()
+        self._node_ids = np.array(list(self._nodes), dtype=np.int64)
+        self._node_index = {n: i for i, n in enumerate(self._nodes)}
+        self._successors = self._successor_arrays()
 
     @classmethod
     def open(cls, path: Path | str) -> RoadGraph:
@@ -82,14 +86,19 @@ class RoadGraph:
             graph.add_edge(e.u, e.v, key=e.key, length=e.length_m)
         return graph
 
-    def _successor_lists(self) -> dict[int, list[tuple[int, float]]]:
+    def _successor_arrays(self) -> tuple[IntArray, IntArray, FloatArray]:
+        """Each node's successors by the shortest parallel edge, in compressed rows: node
+        ``i``'s are ``target[start[i]:start[i + 1]]`` at ``length[...]`` (node indices)."""
         shortest: dict[tuple[int, int], float] = {}
         for e in self._edges:
             shortest[(e.u, e.v)] = min(e.length_m, shortest.get((e.u, e.v), math.inf))
-        out: dict[int, list[tuple[int, float]]] = {n: [] for n in self._nodes}
-        for (u, v), length in shortest.items():
-            out[u].append((v, length))
-        return out
+        index = self._node_index
+        rows = sorted((index[u], index[v], length) for (u, v), length in shortest.items())
+        counts = np.bincount([r[0] for r in rows], minlength=len(index))
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        target = np.array([r[1] for r in rows], dtype=np.int64)
+        length = np.array([r[2] for r in rows], dtype=np.float64)
+        return start, target, length
 
     # --- records -------------------------------------------------------------------------
     @property
@@ -163,23 +172,39 @@ class RoadGraph:
     def distances_from(self, source: int, cutoff_m: float) -> dict[int, float]:
         """Driving distance from ``source`` to every node within ``cutoff_m`` (Dijkstra).
 
-        A plain heap search over precomputed successor lists: the matchers run one per
-        candidate, and networkx's general version cost three times as much.
+        Compiled over compressed successor rows: the offline matcher runs one per candidate
+        source node, and networkx's general version cost three times a plain Python heap
+        search, which in turn cost five times this.
         """
-        done: dict[int, float] = {}
-        heap = [(0.0, source)]
-        successors = self._successors
-        while heap:
-            d, u = heapq.heappop(heap)
-            if u in done:
-                continue
-            done[u] = d
-            for v, length in successors[u]:
-                dv = d + length
-                if dv <= cutoff_m and v not in done:
-                    heapq.heappush(heap, (dv, v))
-        return done
+        nodes, distances = _distances_from(self._node_index[source], cutoff_m, *self._successors)
+        return dict(zip(self._node_ids[nodes].tolist(), distances.tolist()))
 
     def _shortest_parallel(self, u: int, v: int) -> EdgeKey:
         key = min(self.graph[u][v], key=lambda k: self.graph[u][v][k]["length"])
         return EdgeKey(u, v, key)
+
+
+@numba.njit(cache=True, nogil=True)
+def _distances_from(source: int, cutoff_m: float, start: IntArray, target: IntArray,
+                    length: FloatArray) -> tuple[IntArray, FloatArray]:  # pragma: no cover
+    """Dijkstra from node index ``source`` to ``cutoff_m``: the nodes reached, in order of
+    distance, and their distances."""
+    done = {source: 0.0}
+    done.clear()
+    heap = [(0.0, source)]
+    nodes, distances = [source], [0.0]
+    nodes.clear()
+    distances.clear()
+    while heap:
+        d, u = heapq.heappop(heap)
+        if u in done:
+            continue
+        done[u] = d
+        nodes.append(u)
+        distances.append(d)
+        for k in range(start[u], start[u + 1]):
+            v = target[k]
+            dv = d + length[k]
+            if dv <= cutoff_m and v not in done:
+                heapq.heappush(heap, (dv, v))
+    return np.array(nodes, dtype=np.int64), np.array(distances)

@@ -37,11 +37,10 @@ class TracePoint(NamedTuple):
     y_m: float
 
 
-@dataclass(frozen=True)
-class PointMatch:
+class PointMatch(NamedTuple):
     """Where one trace point was matched (None: no road near it, or outside every segment)."""
 
-    index: int
+    trace_index: int  # the point's position in the (cleaned) trace
     projection: EdgeProjection | None
     segment: int | None
 
@@ -134,9 +133,8 @@ class HmmMatcher:
             history.append((i, layer))
         if history:
             self._close_segment(points, history, segments, matches)
-        return MatchResult(segments, [
-            PointMatch(i, matches[i][0] if i in matches else None,
-                       matches[i][1] if i in matches else None) for i in range(len(points))])
+        return MatchResult(segments, [PointMatch(i, *matches.get(i, (None, None)))
+                                      for i in range(len(points))])
 
     def _transition(self, layer: list[tuple[EdgeProjection, float, int]], prev: TracePoint,
                     point: TracePoint, cands: list[EdgeProjection], emission: list[float],

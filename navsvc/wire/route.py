@@ -77,7 +77,7 @@ def match_trace(graph: RoadGraph, fixes: list[TraceFix],
                        "edge": {"u": e.u, "v": e.v, "key": e.key},
                        "distance_m": round(m.projection.distance_m, 2),
                        "segment": m.segment}
-        per_point.append({"index": m.index, "t": f.t, "lat": f.lat_deg, "lon": f.lon_deg,
+        per_point.append({"index": m.trace_index, "t": f.t, "lat": f.lat_deg, "lon": f.lon_deg,
                           "matched": matched})
     segments = [_segment_json(graph, s) for s in result.segments]
     length = np.hypot(*np.diff(xy, axis=0).T).sum() if len(xy) > 1 else 0.0

@@ -149,3 +149,16 @@ def test_points_the_projection_cannot_hold_are_near_nothing(sample_graph: RoadGr
     assert sample_graph.edges_near(math.inf, 0.0, 30.0) == []
     with pytest.raises(RoadGraphError, match="outside what the map's projection can hold"):
         sample_graph.nearest_edge(math.nan, 0.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.0, 3000.0))
+def test_distances_from_agrees_with_networkx(sample_graph: RoadGraph, pick: int,
+                                             cutoff_m: float) -> None:
+    source = sample_graph.nodes[pick % len(sample_graph.nodes)].id
+    expected = nx.single_source_dijkstra_path_length(sample_graph.graph, source,
+                                                     cutoff=cutoff_m, weight="length")
+    found = sample_graph.distances_from(source, cutoff_m)
+    assert found.keys() == expected.keys()
+    for node, distance in expected.items():
+        assert found[node] == pytest.approx(distance, abs=1e-9)
