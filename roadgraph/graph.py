@@ -119,9 +119,12 @@ class RoadGraph:
         return edge in self._index
 
     # --- spatial -------------------------------------------------------------------------
-    def edges_near(self, x_m: float, y_m: float, radius_m: float) -> list[EdgeProjection]:
-        """The point projected onto each edge within ``radius_m`` of it, nearest first."""
-        return self._projections(self._grid.near(x_m, y_m, radius_m))
+    def edges_near(self, x_m: float, y_m: float, radius_m: float,
+                   limit: int | None = None) -> list[EdgeProjection]:
+        """The point projected onto each edge within ``radius_m`` of it, nearest first; the
+        ``limit`` nearest when given."""
+        return self._projections(self._grid.near(x_m, y_m, radius_m,
+                                                 -1 if limit is None else limit))
 
     def nearest_edge(self, x_m: float, y_m: float) -> EdgeProjection:
         """The point projected onto the nearest edge, however far (start-up when nothing is

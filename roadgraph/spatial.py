@@ -69,15 +69,16 @@ class SegmentGrid:
                     cells[(i, j)].append(s)
         return {k: np.array(v, dtype=np.int64) for k, v in cells.items()}
 
-    def near(self, x_m: float, y_m: float, radius_m: float) -> NearPolylines:
+    def near(self, x_m: float, y_m: float, radius_m: float, limit: int = -1) -> NearPolylines:
         """Each polyline within ``radius_m`` and its closest point, nearest first (ties: the
-        lower polyline index, then its first segment).
+        lower polyline index, then its first segment); only the first ``limit`` when >= 0.
 
         A point that is not finite (a position the map's projection cannot hold, such as a
         pole in a UTM frame) is near nothing."""
         if not (math.isfinite(x_m) and math.isfinite(y_m)):
             return NOTHING_NEAR
-        return self._nearest_per_owner(self._candidates(x_m, y_m, radius_m), x_m, y_m, radius_m)
+        return self._nearest_per_owner(self._candidates(x_m, y_m, radius_m), x_m, y_m, radius_m,
+                                       limit)
 
     def nearest(self, x_m: float, y_m: float) -> NearPolylines:
         """The nearest polyline however far (widening searches, then every segment); nothing
@@ -86,12 +87,11 @@ class SegmentGrid:
             return NOTHING_NEAR
         radius = self.cell_m
         while radius <= self._extent_m:
-            found = self.near(x_m, y_m, radius)
+            found = self.near(x_m, y_m, radius, limit=1)
             if found.polylines:
-                return NearPolylines(found.polylines[:1], found.closest[:1])
+                return found
             radius *= 4.0
-        found = self._nearest_per_owner(self._all, x_m, y_m, math.inf)
-        return NearPolylines(found.polylines[:1], found.closest[:1])
+        return self._nearest_per_owner(self._all, x_m, y_m, math.inf, limit=1)
 
     def _candidates(self, x_m: float, y_m: float, radius_m: float) -> IntArray:
         c = self.cell_m
@@ -106,12 +106,12 @@ class SegmentGrid:
             return self._all[:0]
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
-    def _nearest_per_owner(self, segs: IntArray, x_m: float, y_m: float,
-                           radius_m: float) -> NearPolylines:
-        if segs.size == 0:
+    def _nearest_per_owner(self, segs: IntArray, x_m: float, y_m: float, radius_m: float,
+                           limit: int) -> NearPolylines:
+        if segs.size == 0 or limit == 0:
             return NOTHING_NEAR
-        owners, closest = _nearest_segment_per_owner(segs, x_m, y_m, radius_m, self._segments,
-                                                     self._owner)
+        owners, closest = _nearest_segment_per_owner(segs, x_m, y_m, radius_m, limit,
+                                                     self._segments, self._owner)
         return NearPolylines(owners.tolist(), closest.tolist())
 
 
@@ -131,9 +131,10 @@ def _segment_bearings(dx: FloatArray, dy: FloatArray, owner: IntArray) -> FloatA
 
 @numba.njit(cache=True, nogil=True)
 def _nearest_segment_per_owner(segs: IntArray, x_m: float, y_m: float, radius_m: float,
-                               segments: FloatArray, owner: IntArray
+                               limit: int, segments: FloatArray, owner: IntArray
                                ) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled
-    """Each owner's nearest segment within the radius, owners nearest first: the owners, and
+    """Each owner's nearest segment within the radius, owners nearest first and at most
+    ``limit`` of them (all when negative): the owners, and
     the rows of :class:`NearPolylines` ``closest``. Compiled: a query runs once per
     map-matching candidate search, and the same steps in NumPy made a dozen small calls."""
     segs = np.unique(segs)  # sorted, so that ties go to the lower segment
@@ -151,9 +152,9 @@ def _nearest_segment_per_owner(segs: IntArray, x_m: float, y_m: float, radius_m:
     out_owner = np.empty(segs.size, dtype=np.int64)
     out = np.empty((segs.size, 5))
     n = 0
-    limit = radius_m * radius_m
+    radius_sq = radius_m * radius_m
     for k in order:
-        if d2[k] > limit:
+        if d2[k] > radius_sq or n == limit:
             break
         s = segs[k]
         o = owner[s]

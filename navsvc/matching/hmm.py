@@ -86,8 +86,8 @@ class HmmMatcher:
 
     def candidates(self, p: TracePoint) -> list[EdgeProjection]:
         c = self.config
-        near = self.graph.edges_near(p.x_m, p.y_m, c.search_radius_sigmas * c.sigma_m)
-        return near[:c.max_candidates]
+        return self.graph.edges_near(p.x_m, p.y_m, c.search_radius_sigmas * c.sigma_m,
+                                     c.max_candidates)
 
     def _reach(self, source: int, limit_m: float,
                cache: dict[int, tuple[float, dict[int, float]]]) -> dict[int, float]:

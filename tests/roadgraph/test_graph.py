@@ -104,6 +104,7 @@ def test_edges_near_matches_brute_force(sample_graph: RoadGraph, fx: float, fy: 
         assert ne.bearing_rad == pytest.approx(p.bearing_rad) or at_vertex < 1e-6
     dists = [ne.distance_m for ne in near]
     assert dists == sorted(dists)
+    assert sample_graph.edges_near(x, y, r, limit=3) == near[:3]
 
 
 def test_nearest_edge_matches_brute_force(sample_graph: RoadGraph) -> None:
