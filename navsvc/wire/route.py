@@ -10,7 +10,7 @@ from shapely import LineString
 from shapely.ops import substring
 
 from navsvc.errors import TraceError
-from navsvc.matching.hmm import HmmConfig, HmmMatcher, MatchResult, RouteSegment, TracePoint
+from navsvc.matching.hmm import HmmConfig, HmmMatcher, MatchResult, RouteSegment
 from navsvc.wire.traces import TraceFix, clean
 from roadgraph import RoadGraph
 
@@ -57,8 +57,7 @@ def match_trace(graph: RoadGraph, fixes: list[TraceFix],
     """Match a trace (sorted by time and deduplicated first) and describe the route."""
     fixes = clean(fixes)
     xy = _local(graph, fixes)
-    points = [TracePoint(f.t, x, y) for f, (x, y) in zip(fixes, xy.tolist())]
-    result: MatchResult = HmmMatcher(graph, config).match(points)
+    result: MatchResult = HmmMatcher(graph, config).match(xy.tolist())
     if not result.segments:
         radius = config.search_radius_sigmas * config.sigma_m
         raise TraceError(f"no point of the trace is within {radius:g} m of a road of the map "
