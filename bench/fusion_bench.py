@@ -3,7 +3,7 @@ side by side with FilterPy's ExtendedKalmanFilter running the same model in the 
 
 Both filters get identical state, covariance, Jacobians and noise from
 ``navsvc.fusion.motion``; the timed work is what each filter does with them (FilterPy's
-``predict``/``update``, our ``kalman.predict``/``innovation``+``gate``+``update``), plus the
+``predict``/``update``, our ``kalman.predict``/``correct`` with its gate), plus the
 shared model evaluation. Needs the ``bench`` extra (``pip install -e '.[bench]'``).
 
     python bench/fusion_bench.py [--steps 20000]
@@ -70,9 +70,8 @@ def bench(sensors: SensorConfig, steps: int) -> dict[str, float]:
     def our_update(model: Callable[[np.ndarray], motion.Measurement]) -> Callable[[], None]:
         def run() -> None:
             z, h, H, R = model(ours["x"])
-            y, S, nis = kalman.innovation(z, h, H, ours["P"], R)
-            if kalman.gate(nis, len(z), 1e6):
-                ours["x"], ours["P"] = kalman.update(ours["x"], ours["P"], y, S, H, R)
+            ours["x"], ours["P"], _ = kalman.correct(ours["x"], ours["P"], z, h, H, R,
+                                                     kalman.gate_limit(len(z), 1e6))
         return run
 
     ekf = ExtendedKalmanFilter(dim_x=N_STATES, dim_z=2)

@@ -15,7 +15,6 @@ The per-vehicle state is :class:`FusionState` (plain data); the engine owns one.
 
 from __future__ import annotations
 
-import copy
 import enum
 import math
 from collections import deque
@@ -204,10 +203,10 @@ class FusionEngine:
         """Apply an external measurement (map feedback); False when it fails the gate."""
         if not self.state.initialized:
             return False
-        y, S, nis = kalman.innovation(z, h, H, self.state.P, R)
-        if not kalman.gate(nis, len(z)):
+        s, limit = self.state, kalman.gate_limit(len(z))
+        s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        if not nis <= limit:
             return False
-        self.state.x, self.state.P = kalman.update(self.state.x, self.state.P, y, S, H, R)
         self._history.clear()  # an external correction cannot be replayed
         return True
 
@@ -271,11 +270,13 @@ class FusionEngine:
     def _update(self, m: motion.Measurement, gate_dof: int | None = None) -> float | None:
         """Kalman update; with ``gate_dof``, refuse (return None) past the chi-square gate."""
         z, h, H, R = m
-        y, S, nis = kalman.innovation(z, h, H, self.state.P, R)
-        if gate_dof is not None and not kalman.gate(nis, gate_dof, self.config.gps_gate_scale):
+        s = self.state
+        limit = math.inf if gate_dof is None else \
+            kalman.gate_limit(gate_dof, self.config.gps_gate_scale)
+        s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        if not nis <= limit:
             return None
-        self.state.x, self.state.P = kalman.update(self.state.x, self.state.P, y, S, H, R)
-        self.state.x[HEADING] %= 2.0 * math.pi
+        s.x[HEADING] %= 2.0 * math.pi
         return nis
 
     # --- dead reckoning ------------------------------------------------------------------
@@ -532,7 +533,8 @@ def _reset_variance(P: Array, i: int, variance: float) -> None:
 def _snapshot(state: FusionState) -> FusionState:
     """A copy that later updates cannot reach (taken at every packet: kept cheap; the only
     mutable fields are the two arrays, ``gps`` is frozen)."""
-    snap = copy.copy(state)
+    snap = object.__new__(FusionState)  # copy.copy took a third of the time, for the same
+    snap.__dict__.update(state.__dict__)
     snap.x = state.x.copy()
     snap.P = state.P.copy()
     return snap

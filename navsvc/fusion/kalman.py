@@ -11,6 +11,8 @@ overhead costs more than the arithmetic; the bodies are compiled with numba (cac
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 import numpy.typing as npt
@@ -45,12 +47,9 @@ def inverse(S: Array) -> Array:  # pragma: no cover - compiled
     return np.ascontiguousarray(np.linalg.inv(S))
 
 
-@jit
-def _innovation(z: Array, h: Array, H: Array, P: Array,
-                R: Array) -> tuple[Array, Array, float]:  # pragma: no cover - compiled
-    y = z - h
-    S = H @ P @ np.ascontiguousarray(H.T) + R
-    return y, S, float(y @ inverse(S) @ y)
+def gate_limit(dof: int, scale: float = 1.0) -> float:
+    """The largest NIS that passes the chi-square gate (``scale`` widens it)."""
+    return CHI2_999[dof] * scale
 
 
 def _f64(a: Array) -> Array:
@@ -58,9 +57,26 @@ def _f64(a: Array) -> Array:
     return np.asarray(a, dtype=np.float64)
 
 
-def innovation(z: Array, h: Array, H: Array, P: Array, R: Array) -> tuple[Array, Array, float]:
-    """Innovation ``y = z - h(x)``, its covariance ``S`` and the NIS ``yᵀ S⁻¹ y``."""
-    return _innovation(_f64(z), _f64(h), _f64(H), P, _f64(R))
+def correct(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
+            max_nis: float = math.inf) -> tuple[Array, Array, float]:
+    """Measurement update: innovation ``y = z - h(x)``, its NIS ``yᵀ S⁻¹ y`` against the gate
+    ``max_nis``, then the Joseph-form update. Returns ``(x, P, nis)``; past the gate ``x`` and
+    ``P`` come back as they were. One compiled call: the filter makes one per inertial sample."""
+    return _correct(x, P, _f64(z), _f64(h), _f64(H), _f64(R), max_nis)
+
+
+@jit
+def _correct(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
+             max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover - compiled
+    y = z - h
+    Ht = np.ascontiguousarray(H.T)
+    S_inv = inverse(H @ P @ Ht + R)
+    nis = float(y @ S_inv @ y)
+    if not nis <= max_nis:
+        return x, P, nis
+    K = P @ Ht @ S_inv
+    x_new, P_new = _joseph(x, P, y, H, R, K)
+    return x_new, P_new, nis
 
 
 @jit
@@ -70,22 +86,6 @@ def _joseph(x: Array, P: Array, y: Array, H: Array, R: Array,
     I_KH = np.eye(len(x)) - K @ H
     P_new = I_KH @ P @ np.ascontiguousarray(I_KH.T) + K @ R @ np.ascontiguousarray(K.T)
     return x_new, 0.5 * (P_new + P_new.T)
-
-
-@jit
-def _gain(P: Array, H: Array, S: Array) -> Array:  # pragma: no cover - compiled
-    return P @ np.ascontiguousarray(H.T) @ inverse(S)
-
-
-def update(x: Array, P: Array, y: Array, S: Array, H: Array, R: Array) -> tuple[Array, Array]:
-    """Measurement update from an innovation (Joseph form)."""
-    H, R = _f64(H), _f64(R)
-    return _joseph(x, P, y, H, R, _gain(P, H, S))
-
-
-def gate(nis: float, dof: int, scale: float = 1.0) -> bool:
-    """Whether an innovation passes the chi-square gate (``scale`` widens it)."""
-    return nis <= CHI2_999[dof] * scale
 
 
 def fixed_gain_update(x: Array, P: Array, y: Array, H: Array, R: Array,

@@ -10,9 +10,8 @@ def test_scalar_update_by_hand() -> None:
     # prior 0 +- 2 (var 4), measurement 3 +- 1 (var 1): K = 4/5, x = 2.4, P = 0.8
     x, P = np.array([0.0]), np.array([[4.0]])
     H, R = np.array([[1.0]]), np.array([[1.0]])
-    y, S, nis = kalman.innovation(np.array([3.0]), x, H, P, R)
-    assert S[0, 0] == pytest.approx(5.0) and nis == pytest.approx(9.0 / 5.0)
-    x2, P2 = kalman.update(x, P, y, S, H, R)
+    x2, P2, nis = kalman.correct(x, P, np.array([3.0]), x, H, R)
+    assert nis == pytest.approx(9.0 / 5.0)  # S = 5
     assert x2[0] == pytest.approx(2.4) and P2[0, 0] == pytest.approx(0.8)
 
 
@@ -20,15 +19,20 @@ def test_two_by_two_position_update() -> None:
     x = np.array([0.0, 0.0])
     P = np.diag([4.0, 9.0])
     H, R = np.eye(2), np.eye(2)
-    y, S, _ = kalman.innovation(np.array([5.0, 10.0]), x, H, P, R)
-    x2, P2 = kalman.update(x, P, y, S, H, R)
+    x2, P2, _ = kalman.correct(x, P, np.array([5.0, 10.0]), x, H, R)
     assert x2 == pytest.approx([4.0, 9.0])
     assert np.diag(P2) == pytest.approx([0.8, 0.9])
 
 
 def test_gate() -> None:
-    assert kalman.gate(13.0, 2) and not kalman.gate(14.0, 2)
-    assert kalman.gate(14.0, 2, scale=2.0)
+    assert kalman.gate_limit(2) == pytest.approx(13.816)
+    assert kalman.gate_limit(2, scale=2.0) == pytest.approx(2 * 13.816)
+    # past the gate the state comes back unchanged, with the NIS that refused it
+    x, P = np.array([0.0, 0.0]), np.diag([4.0, 9.0])
+    x2, P2, nis = kalman.correct(x, P, np.array([50.0, 0.0]), x, np.eye(2), np.eye(2),
+                                 kalman.gate_limit(2))
+    assert nis == pytest.approx(2500.0 / 5.0)
+    assert np.array_equal(x2, x) and np.array_equal(P2, P)
 
 
 spd = st.floats(0.1, 100.0)
@@ -40,8 +44,7 @@ def test_covariance_stays_symmetric_psd(a: float, b: float, r: float, z0: float,
     P = np.array([[a, 0.3 * min(a, b)], [0.3 * min(a, b), b]])
     H, R = np.array([[1.0, 0.5]]), np.array([[r]])
     x = np.zeros(2)
-    y, S, _ = kalman.innovation(np.array([z0]), H @ x, H, P, R)
-    _, P2 = kalman.update(x, P, y, S, H, R)
+    _, P2, _ = kalman.correct(x, P, np.array([z0]), H @ x, H, R)
     assert np.allclose(P2, P2.T)
     assert np.linalg.eigvalsh(P2).min() > -1e-9
     F = np.array([[1.0, 0.1], [0.0, 1.0]])
