@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"))
+
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sessions (
     id TEXT PRIMARY KEY,
@@ -28,12 +30,21 @@ CREATE TABLE IF NOT EXISTS sessions (
     created_unix REAL NOT NULL,
     closed INTEGER NOT NULL DEFAULT 0
 );
-CREATE TABLE IF NOT EXISTS packets (
+CREATE TABLE IF NOT EXISTS batches (
     session_id TEXT NOT NULL REFERENCES sessions(id),
-    seq INTEGER NOT NULL,         -- 0, 1, 2 ... per session, in the order they were applied
-    record TEXT NOT NULL,         -- the packet as received, JSON
+    seq INTEGER NOT NULL,         -- number of the batch's first packet (0, 1, 2 ... per session,
+                                  -- in the order they were applied)
+    count INTEGER NOT NULL,       -- packets in the batch
+    records TEXT NOT NULL,        -- the accepted packets as received, a JSON array
     PRIMARY KEY (session_id, seq)
 ) WITHOUT ROWID;
+"""
+
+# Logs written before batches (one row a packet) are moved over when opened.
+_FROM_PACKET_ROWS = """
+INSERT INTO batches (session_id, seq, count, records)
+    SELECT session_id, seq, 1, '[' || record || ']' FROM packets;
+DROP TABLE packets;
 """
 
 
@@ -62,6 +73,8 @@ class TripLog:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(f"PRAGMA synchronous={sync.upper()}")
         self._db.executescript(SCHEMA)
+        if self._db.execute("SELECT 1 FROM sqlite_master WHERE name = 'packets'").fetchone():
+            self._db.executescript(f"BEGIN; {_FROM_PACKET_ROWS} COMMIT;")
 
     def close(self) -> None:
         self._db.close()
@@ -76,22 +89,24 @@ class TripLog:
                  session.created_unix))
 
     def append(self, session_id: str, first_seq: int, records: Sequence[Any]) -> None:
-        """Write a batch of accepted packets (seq numbers from ``first_seq``) and commit."""
+        """Write a batch of accepted packets (seq numbers from ``first_seq``) and commit.
+
+        One row a batch: encoding and inserting packet by packet cost a fifth of the
+        service's time per packet."""
         if not records:
             return
         with self._db:
             self._db.execute("BEGIN")
-            self._db.executemany(
-                "INSERT INTO packets (session_id, seq, record) VALUES (?, ?, ?)",
-                [(session_id, first_seq + i, json.dumps(r, separators=(",", ":")))
-                 for i, r in enumerate(records)])
+            self._db.execute(
+                "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
+                (session_id, first_seq, len(records), _ENCODER.encode(records)))
 
     def close_session(self, session_id: str) -> None:
         """Mark a session ended (deleted or expired) and drop its packets."""
         with self._db:
             self._db.execute("BEGIN")
             self._db.execute("UPDATE sessions SET closed = 1 WHERE id = ?", (session_id,))
-            self._db.execute("DELETE FROM packets WHERE session_id = ?", (session_id,))
+            self._db.execute("DELETE FROM batches WHERE session_id = ?", (session_id,))
 
     def open_sessions(self) -> list[LoggedSession]:
         rows = self._db.execute(
@@ -102,11 +117,6 @@ class TripLog:
     def packets(self, session_id: str) -> Iterator[Any]:
         """A session's packets in the order they were applied."""
         cursor = self._db.execute(
-            "SELECT record FROM packets WHERE session_id = ? ORDER BY seq", (session_id,))
-        for (record,) in cursor:
-            yield json.loads(record)
-
-    def packet_count(self, session_id: str) -> int:
-        row = self._db.execute("SELECT COUNT(*) FROM packets WHERE session_id = ?",
-                               (session_id,)).fetchone()
-        return int(row[0])
+            "SELECT records FROM batches WHERE session_id = ? ORDER BY seq", (session_id,))
+        for (records,) in cursor:
+            yield from json.loads(records)

@@ -33,3 +33,37 @@ def test_failed_log_write_rebuilds_the_session_from_the_log(
     monkeypatch.undo()
     store.ingest(rebuilt, GPS[3:])  # the client sends the batch again
     assert store.get(session.id, "").packets == 6
+
+
+def test_log_keeps_packets_in_order_across_batches_and_restores(
+        sample_graph: RoadGraph, tmp_path: Path) -> None:
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    session = store.create("", "car", {"sensors": "gps_only"})
+    bad = {"t": 2.5, "kind": "gps", "lat": 91.0, "lon": 7.4246}
+    store.ingest(session, [*GPS[:3], bad])  # the refused fix is not logged
+    store.ingest(session, GPS[3:])
+    log = TripLog(tmp_path / "trips.db")
+    assert list(log.packets(session.id)) == GPS
+    restored = SessionStore(sample_graph, log)
+    restored.restore()
+    again = restored.get(session.id, "")
+    assert again.packets == 6
+    assert again.vehicle.engine.t == session.vehicle.engine.t
+
+
+def test_log_written_a_row_a_packet_is_moved_to_batches(tmp_path: Path) -> None:
+    path = tmp_path / "trips.db"
+    TripLog(path).close()
+    db = sqlite3.connect(path)
+    db.executescript("""
+        CREATE TABLE packets (session_id TEXT NOT NULL, seq INTEGER NOT NULL,
+                              record TEXT NOT NULL, PRIMARY KEY (session_id, seq));
+        INSERT INTO sessions (id, owner, vehicle_id, options, created_unix)
+            VALUES ('s1', '', 'car', '{}', 0);
+        INSERT INTO packets VALUES ('s1', 1, '{"t":1.0}'), ('s1', 0, '{"t":0.0}');
+    """)
+    db.close()
+    log = TripLog(path)
+    assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}]
+    assert log._db.execute("SELECT name FROM sqlite_master WHERE name = 'packets'"
+                           ).fetchone() is None
