@@ -8,7 +8,9 @@ Read this file first. Everything here is SI and radians; headings are clockwise 
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -105,10 +107,11 @@ class FusedEstimate:
     initialized: bool = True
     gps: GpsUsage | None = None
 
-    @property
+    @cached_property
     def position_sigma_m(self) -> float:
         """1-sigma horizontal uncertainty: sqrt of the mean of the covariance's eigenvalues."""
-        return float(np.sqrt(max(np.trace(self.position_cov_m2) / 2.0, 0.0)))
+        c = self.position_cov_m2
+        return math.sqrt(max((float(c[0, 0]) + float(c[1, 1])) / 2.0, 0.0))
 
 
 class MatchState(enum.Enum):

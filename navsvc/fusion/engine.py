@@ -262,8 +262,7 @@ class FusionEngine:
         accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
         while remaining > 1e-9:
             dt = min(remaining, cfg.max_step_s)
-            s.x, F, q = motion.propagate(s.x, dt, accel, cfg.process)
-            s.P = kalman.predict(s.P, F, q)
+            s.x, s.P = motion.predict(s.x, s.P, dt, accel, cfg.process)
             remaining -= dt
         s.t = max(s.t, t)
 

@@ -29,6 +29,7 @@ from functools import cached_property
 
 import numpy as np
 
+from navsvc.fusion import kalman
 from navsvc.fusion.kalman import Array, jit
 
 X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS = range(8)
@@ -94,6 +95,25 @@ def propagate(x: Array, dt_s: float, accel_fwd_mps2: float | None,
         accel, densities = accel_fwd_mps2, noise.densities_with_accel
     return _propagate(x, dt_s, accel, densities,
                       math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
+
+
+def predict(x: Array, P: Array, dt_s: float, accel_fwd_mps2: float | None,
+            noise: ProcessNoise) -> tuple[Array, Array]:
+    """State and covariance one step on (:func:`propagate`, then ``F P Fᵀ + Q``), in one
+    compiled call: the filter makes one per inertial sample."""
+    if accel_fwd_mps2 is None:
+        accel, densities = math.nan, noise.densities
+    else:
+        accel, densities = accel_fwd_mps2, noise.densities_with_accel
+    return _predict(x, P, dt_s, accel, densities,
+                    math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
+
+
+@jit
+def _predict(x: Array, P: Array, dt_s: float, accel_fwd_mps2: float, densities: Array,
+             turn_rate_tau_s: float) -> tuple[Array, Array]:  # pragma: no cover - compiled
+    x_next, F, q = _propagate(x, dt_s, accel_fwd_mps2, densities, turn_rate_tau_s)
+    return x_next, kalman.predict(P, F, q)
 
 
 @jit
