@@ -158,12 +158,14 @@ def _row(**entries: float) -> Array:
 
 _INDEX = {"x": X_M, "y": Y_M, "heading": HEADING, "speed": SPEED, "rate": HEADING_RATE,
           "gyro_bias": GYRO_BIAS, "odo_scale": ODO_SCALE, "accel_bias": ACCEL_BIAS}
+_GYRO_RATE_H = _row(rate=-1.0, gyro_bias=1.0)  # constant: made once (a gyro sample is 100 Hz)
+_GYRO_RATE_H.flags.writeable = False
 
 
 def gyro_rate(x: Array, yaw_rate_left_rps: float, sigma_rps: float) -> Measurement:
     """The gyro's z-up rate: ``-heading_rate + bias``."""
     h = -x[HEADING_RATE] + x[GYRO_BIAS]
-    return (np.array([yaw_rate_left_rps]), np.array([h]), _row(rate=-1.0, gyro_bias=1.0),
+    return (np.array([yaw_rate_left_rps]), np.array([h]), _GYRO_RATE_H,
             np.array([[sigma_rps ** 2]]))
 
 
