@@ -268,8 +268,12 @@ class SessionStore:
     def sessions(self, owner: str) -> list[LiveSession]:
         return [s for s in self._sessions.values() if s.owner == owner]
 
-    def ingest(self, session: LiveSession, records: list[Any]) -> BatchResult:
+    def ingest(self, session: LiveSession, records: list[Any],
+               records_json: str | None = None) -> BatchResult:
         """Apply a batch, then log its accepted packets; returns once they are on disk.
+
+        ``records_json``, the batch as the JSON array it arrived in, is logged as it is when
+        every packet is accepted (the common case), which saves encoding it again.
 
         If the log cannot be written the session is rebuilt from its log, so that memory
         never holds packets the log lacks, and the error propagates (nothing acknowledged).
@@ -279,7 +283,8 @@ class SessionStore:
         accepted = [r for i, r in enumerate(records) if i not in refused
                     and not (isinstance(r, dict) and r.get("kind") == "truth")]
         try:
-            self.triplog.append(session.id, session.packets, accepted)
+            self.triplog.append(session.id, session.packets, accepted,
+                                records_json if len(accepted) == len(records) else None)
         except sqlite3.Error:
             log.exception("session %s: trip log write failed; rebuilding from the log",
                           session.id)

@@ -88,8 +88,10 @@ class TripLog:
                 (session.id, session.owner, session.vehicle_id, json.dumps(session.options),
                  session.created_unix))
 
-    def append(self, session_id: str, first_seq: int, records: Sequence[Any]) -> None:
-        """Write a batch of accepted packets (seq numbers from ``first_seq``) and commit.
+    def append(self, session_id: str, first_seq: int, records: Sequence[Any],
+               records_json: str | None = None) -> None:
+        """Write a batch of accepted packets (seq numbers from ``first_seq``) and commit;
+        ``records_json`` is their JSON array when the caller has it already.
 
         One row a batch: encoding and inserting packet by packet cost a fifth of the
         service's time per packet."""
@@ -99,7 +101,8 @@ class TripLog:
             self._db.execute("BEGIN")
             self._db.execute(
                 "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
-                (session_id, first_seq, len(records), _ENCODER.encode(records)))
+                (session_id, first_seq, len(records),
+                 _ENCODER.encode(records) if records_json is None else records_json))
 
     def close_session(self, session_id: str) -> None:
         """Mark a session ended (deleted or expired) and drop its packets."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sqlite3
 from pathlib import Path
 
@@ -67,3 +68,17 @@ def test_log_written_a_row_a_packet_is_moved_to_batches(tmp_path: Path) -> None:
     assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}]
     assert log._db.execute("SELECT name FROM sqlite_master WHERE name = 'packets'"
                            ).fetchone() is None
+
+
+def test_batch_json_as_received_is_logged_only_when_all_are_accepted(
+        sample_graph: RoadGraph, tmp_path: Path) -> None:
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    session = store.create("", "car", {"sensors": "gps_only"})
+    text = json.dumps(GPS[:3], indent=1)  # as a client might format it
+    store.ingest(session, json.loads(text), text)
+    bad = [GPS[3], {"t": 3.5, "kind": "gps", "lat": 91.0, "lon": 7.4246}]
+    store.ingest(session, bad, json.dumps(bad))  # one refused: the text is not logged
+    rows = store.triplog._db.execute("SELECT records FROM batches ORDER BY seq").fetchall()
+    assert rows[0][0] == text
+    assert json.loads(rows[1][0]) == [GPS[3]]
+    assert list(store.triplog.packets(session.id)) == GPS[:4]

@@ -25,14 +25,16 @@ def session_info(state: AppState, s: LiveSession) -> SessionInfo:
         position=None if position is None else position_json(position, state.graph.frame))
 
 
-def ingest(state: AppState, session: LiveSession, packets: list[Any]) -> BatchReply:
-    """Apply a batch (API and WebSocket alike), count it, and describe the result."""
+def ingest(state: AppState, session: LiveSession, packets: list[Any],
+           packets_json: str | None = None) -> BatchReply:
+    """Apply a batch (API and WebSocket alike), count it, and describe the result
+    (``packets_json``: the batch's JSON array as received, for the trip log)."""
     limit = state.settings.max_batch_packets
     if len(packets) > limit:
         raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
     start = time.perf_counter()
     try:
-        result: BatchResult = state.store.ingest(session, packets)
+        result: BatchResult = state.store.ingest(session, packets, packets_json)
     except sqlite3.Error as exc:
         raise HTTPException(503, f"the trip log cannot be written ({exc}); the batch was not "
                                  "applied, send it again") from exc

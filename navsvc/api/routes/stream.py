@@ -88,10 +88,11 @@ def _answer(state: AppState, session_id: str, owner: str, text: str) -> dict[str
         return _error("malformed", f"message is not JSON: {exc}")
     if isinstance(message, dict) and message.get("type") == "ping":
         return {"type": "pong"}
-    packets = message if isinstance(message, list) else [message]
+    packets, packets_json = (message, text) if isinstance(message, list) else \
+        ([message], f"[{text}]")
     try:
         session = state.store.get(session_id, owner)  # it may have expired meanwhile
-        reply = ingest(state, session, packets)
+        reply = ingest(state, session, packets, packets_json)
     except SessionNotFound as exc:
         return _error("session_not_found", str(exc))
     except HTTPException as exc:
