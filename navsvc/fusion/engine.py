@@ -258,12 +258,9 @@ class FusionEngine:
     def _propagate_to(self, t: float) -> None:
         s, cfg = self.state, self.config
         assert s.t is not None
-        remaining = t - s.t
-        accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
-        while remaining > 1e-9:
-            dt = min(remaining, cfg.max_step_s)
-            s.x, s.P = motion.predict(s.x, s.P, dt, accel, cfg.process)
-            remaining -= dt
+        if t - s.t > 1e-9:
+            accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
+            s.x, s.P = motion.predict(s.x, s.P, t - s.t, cfg.max_step_s, accel, cfg.process)
         s.t = max(s.t, t)
 
     def _update(self, m: motion.Measurement, gate_dof: int | None = None) -> float | None:

@@ -97,23 +97,30 @@ def propagate(x: Array, dt_s: float, accel_fwd_mps2: float | None,
                       math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
 
 
-def predict(x: Array, P: Array, dt_s: float, accel_fwd_mps2: float | None,
+def predict(x: Array, P: Array, dt_s: float, max_step_s: float, accel_fwd_mps2: float | None,
             noise: ProcessNoise) -> tuple[Array, Array]:
-    """State and covariance one step on (:func:`propagate`, then ``F P Fᵀ + Q``), in one
-    compiled call: the filter makes one per inertial sample."""
+    """State and covariance ``dt_s`` on, in steps of at most ``max_step_s`` (each
+    :func:`propagate`, then ``F P Fᵀ + Q``), in one compiled call: the filter makes one per
+    inertial sample, and one per GPS fix in a GPS-only session."""
     if accel_fwd_mps2 is None:
         accel, densities = math.nan, noise.densities
     else:
         accel, densities = accel_fwd_mps2, noise.densities_with_accel
-    return _predict(x, P, dt_s, accel, densities,
+    return _predict(x, P, dt_s, max_step_s, accel, densities,
                     math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
 
 
 @jit
-def _predict(x: Array, P: Array, dt_s: float, accel_fwd_mps2: float, densities: Array,
-             turn_rate_tau_s: float) -> tuple[Array, Array]:  # pragma: no cover - compiled
-    x_next, F, q = _propagate(x, dt_s, accel_fwd_mps2, densities, turn_rate_tau_s)
-    return x_next, kalman.predict(P, F, q)
+def _predict(x: Array, P: Array, dt_s: float, max_step_s: float, accel_fwd_mps2: float,
+             densities: Array, turn_rate_tau_s: float
+             ) -> tuple[Array, Array]:  # pragma: no cover - compiled
+    remaining = dt_s
+    while remaining > 1e-9:
+        step = min(remaining, max_step_s)
+        x, F, q = _propagate(x, step, accel_fwd_mps2, densities, turn_rate_tau_s)
+        P = kalman.predict(P, F, q)
+        remaining -= step
+    return x, P
 
 
 @jit
