@@ -208,9 +208,14 @@ def steering_rate(x: Array, angle_left_rad: float, wheelbase_m: float,
 
 
 def gps_position(x: Array, east_m: float, north_m: float, sigma_m: float) -> Measurement:
-    H = np.zeros((2, N_STATES))
-    H[0, X_M] = H[1, Y_M] = 1.0
-    return (np.array([east_m, north_m]), x[[X_M, Y_M]].copy(), H, np.eye(2) * sigma_m ** 2)
+    variance = sigma_m ** 2
+    return (np.array([east_m, north_m]), np.array([x[X_M], x[Y_M]]), _GPS_POSITION_H,
+            np.array([[variance, 0.0], [0.0, variance]]))
+
+
+_GPS_POSITION_H = np.zeros((2, N_STATES))
+_GPS_POSITION_H[0, X_M] = _GPS_POSITION_H[1, Y_M] = 1.0
+_GPS_POSITION_H.flags.writeable = False
 
 
 def gps_velocity(x: Array, speed_mps: float, course_rad: float,
