@@ -8,7 +8,9 @@ three modes: ``ekf`` (Kalman update with chi-square gating), ``rules`` (thesis 5
 stationary: zero-velocity updates hold it and calibrate the gyro bias (thesis: gyro centre).
 
 Packets up to ``reorder_window_s`` late are applied in time order (the state is rolled back
-and the later packets replayed); older ones are refused with ``time_backwards``.
+and the later packets replayed); older ones are refused with ``time_backwards``. The state is
+saved every ``SNAPSHOT_EVERY`` packets, not at each: a late packet replays a few more, and the
+copies no longer cost a tenth of the time per packet.
 
 The per-vehicle state is :class:`FusionState` (plain data); the engine owns one.
 """
@@ -139,6 +141,9 @@ class FusionConfig:
             raise ConfigError(f"reorder_window_s must be >= 0, got {self.reorder_window_s}")
 
 
+SNAPSHOT_EVERY = 8  # packets between saved states in the reorder window
+
+
 @dataclass
 class FusionState:
     """Everything one vehicle's filter remembers (plain data, owned by the session)."""
@@ -171,7 +176,8 @@ class FusionEngine:
         self.config = config
         self.frame = frame
         self.state = FusionState()
-        self._history: deque[tuple[Packet, FusionState]] = deque()
+        # the reorder window: groups of packets applied, each with the state before its first
+        self._history: deque[tuple[FusionState, list[Packet]]] = deque()
 
     # --- public --------------------------------------------------------------------------
     @property
@@ -188,7 +194,7 @@ class FusionEngine:
         if t_now is None or packet.t >= t_now:
             return self._apply_logged(packet)
         if packet.t < t_now - self.config.reorder_window_s or not self._history \
-                or packet.t < self._history[0][0].t:
+                or packet.t < self._history[0][1][0].t:
             self.state.late_rejected += 1
             raise PacketError(RejectReason.TIME_BACKWARDS,
                               f"t={packet.t} is {t_now - packet.t:.3f} s before the latest "
@@ -213,22 +219,31 @@ class FusionEngine:
     # --- ordering ------------------------------------------------------------------------
     def _apply_logged(self, packet: Packet) -> list[FusedEstimate]:
         if self.config.reorder_window_s > 0.0:
-            self._history.append((packet, _snapshot(self.state)))
+            history = self._history
+            if not history or len(history[-1][1]) >= SNAPSHOT_EVERY:
+                history.append((_snapshot(self.state), [packet]))
+            else:
+                history[-1][1].append(packet)
+            # a group can go once the next one starts before the window: it covers the rest
             horizon = packet.t - self.config.reorder_window_s
-            while self._history and self._history[0][0].t < horizon:
-                self._history.popleft()
+            while len(history) > 1 and history[1][1][0].t < horizon:
+                history.popleft()
         return self._apply(packet)
 
     def _replay_with(self, late: Packet) -> list[FusedEstimate]:
-        entries = list(self._history)
-        i = next(k for k, (p, _) in enumerate(entries) if p.t > late.t)
-        self.state = _snapshot(entries[i][1])
-        late_count = self.state.late_rejected
-        for _ in range(len(entries) - i):
+        groups = list(self._history)
+        g = next(k for k in range(len(groups) - 1, -1, -1) if groups[k][1][0].t <= late.t)
+        replay = [p for _, packets in groups[g:] for p in packets]
+        before = next((i for i, p in enumerate(replay) if p.t > late.t), len(replay))
+        for _ in range(len(groups) - g):
             self._history.pop()
-        out = self._apply_logged(late)
-        for p, _ in entries[i:]:
+        self.state = groups[g][0]  # out of the history now: no copy needed
+        late_count = self.state.late_rejected
+        for p in replay[:before]:
             self._apply_logged(p)  # outputs of replayed packets were already emitted
+        out = self._apply_logged(late)
+        for p in replay[before:]:
+            self._apply_logged(p)
         self.state.late_rejected = late_count
         return out
 
