@@ -7,17 +7,24 @@ reply leaves, so a server killed at any moment has every acknowledged packet on 
 With ``synchronous=NORMAL`` (the default here) a commit survives the process crashing; pass
 ``sync="full"`` to also survive the machine losing power, at an fsync per batch.
 
-Only the API's event loop uses a TripLog, so one connection serves it.
+Only the API's event loop uses a TripLog, so one connection serves it. Checkpoints (copying
+the WAL into the database file, with an fsync) run every second in a thread of their own, on
+their own connection, instead of inside whichever commit crossed SQLite's 1,000-page mark:
+there they stalled the event loop for 20 ms every 0.6 s with 1,000 GPS-only sessions.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import sqlite3
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+log = logging.getLogger(__name__)
 
 _ENCODER = json.JSONEncoder(separators=(",", ":"))
 
@@ -65,18 +72,36 @@ class LoggedSession:
 class TripLog:
     """Append-only log of sessions and their accepted packets."""
 
-    def __init__(self, path: Path, sync: str = "normal") -> None:
+    def __init__(self, path: Path, sync: str = "normal", checkpoint_every_s: float = 1.0) -> None:
         if sync not in ("normal", "full"):
             raise ValueError(f"sync must be 'normal' or 'full', got {sync!r}")
         self.path = path
         self._db = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(f"PRAGMA synchronous={sync.upper()}")
+        self._db.execute("PRAGMA wal_autocheckpoint=0")  # the checkpointer thread does it
         self._db.executescript(SCHEMA)
         if self._db.execute("SELECT 1 FROM sqlite_master WHERE name = 'packets'").fetchone():
             self._db.executescript(f"BEGIN; {_FROM_PACKET_ROWS} COMMIT;")
+        self._closing = threading.Event()
+        self._checkpointer = threading.Thread(target=self._checkpoint, args=(checkpoint_every_s,),
+                                              name=f"checkpoint {path.name}", daemon=True)
+        self._checkpointer.start()
+
+    def _checkpoint(self, every_s: float) -> None:
+        db = sqlite3.connect(self.path, isolation_level=None)
+        try:
+            while not self._closing.wait(every_s):
+                try:
+                    db.execute("PRAGMA wal_checkpoint(PASSIVE)")  # never waits for the writer
+                except sqlite3.Error as exc:  # try again next time: the WAL only grows
+                    log.warning("trip log checkpoint failed: %s", exc)
+        finally:
+            db.close()
 
     def close(self) -> None:
+        self._closing.set()
+        self._checkpointer.join()
         self._db.close()
 
     def create_session(self, session: LoggedSession) -> None:

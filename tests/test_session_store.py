@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import sqlite3
+import time
 from pathlib import Path
 
 import pytest
 
 from navsvc.session import SessionStore
-from navsvc.triplog import TripLog
+from navsvc.triplog import LoggedSession, TripLog
 from roadgraph import RoadGraph
 
 GPS = [{"t": float(i), "kind": "gps", "lat": 43.7384 + 1e-4 * i, "lon": 7.4246,
@@ -82,3 +83,21 @@ def test_batch_json_as_received_is_logged_only_when_all_are_accepted(
     assert rows[0][0] == text
     assert json.loads(rows[1][0]) == [GPS[3]]
     assert list(store.triplog.packets(session.id)) == GPS[:4]
+
+
+def test_the_checkpointer_moves_the_wal_into_the_database(tmp_path: Path) -> None:
+    """Commits leave pages in the WAL (no checkpoint on the writer's path); the thread copies
+    them into the database file."""
+    path = tmp_path / "trips.db"
+    log = TripLog(path, checkpoint_every_s=0.05)
+    assert log._db.execute("PRAGMA wal_autocheckpoint").fetchone()[0] == 0
+    log.create_session(LoggedSession("s1", "", "car", {}, 0.0))
+    batch = [{**GPS[0], "note": "x" * 1000}] * 100
+    for k in range(20):  # about 2 MB
+        log.append("s1", 100 * k, batch)
+    deadline = time.monotonic() + 10.0
+    while path.stat().st_size < 1_000_000 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert path.stat().st_size >= 1_000_000
+    log.close()
+    assert not log._checkpointer.is_alive()
