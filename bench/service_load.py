@@ -15,7 +15,8 @@ gyro + odometer drive (100 Hz IMU, 50 Hz odometer, 1 Hz GPS).
 
 The server runs in one process, so it uses one core; the load generator takes the other (its
 garbage collector is off while it measures latency, as its pauses would be counted as the
-server's).
+server's). "packets/s per core" is packets per second over the server's CPU use (user + system
+time per second of the run).
 
     python bench/service_load.py [--map maps/monaco.db] [--seconds 20]
         [--real-rate 1,100,200] [--gps-only 1000] [--throughput 1,4]
@@ -209,9 +210,10 @@ def main() -> None:
         finally:
             server.stop()
     print_table("navsvc service under load (server: 1 process; loopback WebSocket)",
-                ["scenario", "sessions", "packets/s", "server CPU", "p50 ms", "p99 ms",
-                 "late ticks", "MB/session"],
+                ["scenario", "sessions", "packets/s", "server CPU", "packets/s per core",
+                 "p50 ms", "p99 ms", "late ticks", "MB/session"],
                 [[r["scenario"], r["sessions"], r["packets_per_s"], r["server_cpu"],
+                  r["packets_per_s"] / max(r["server_cpu"], 1e-9),
                   r.get("latency_p50_ms", ""), r.get("latency_p99_ms", ""),
                   r.get("late_ticks", ""), r.get("mb_per_session", "")] for r in rows])
     write_json("service_load", {"rows": rows})
