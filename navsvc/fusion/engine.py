@@ -237,8 +237,8 @@ class FusionEngine:
         before = next((i for i, p in enumerate(replay) if p.t > late.t), len(replay))
         for _ in range(len(groups) - g):
             self._history.pop()
+        late_count = self.state.late_rejected  # refusals since the saved state stay counted
         self.state = groups[g][0]  # out of the history now: no copy needed
-        late_count = self.state.late_rejected
         for p in replay[:before]:
             self._apply_logged(p)  # outputs of replayed packets were already emitted
         out = self._apply_logged(late)

@@ -139,3 +139,14 @@ def test_random_streams_never_raise_and_rejections_change_nothing(
         assert np.all(np.isfinite(engine.state.x)) and np.all(np.isfinite(engine.state.P))
         assert np.allclose(engine.state.P, engine.state.P.T)
         assert np.all(np.diag(engine.state.P) >= 0.0)
+
+
+def test_refusals_stay_counted_when_a_late_packet_rolls_the_state_back() -> None:
+    engine = FusionEngine(FusionConfig(reorder_window_s=0.25))
+    engine.add(GpsFix(t=0.0, lat_deg=43.73, lon_deg=7.42, speed_mps=10.0, heading_rad=0.0))
+    for k in range(1, 20):
+        engine.add(ImuSample(t=k * 0.01, yaw_rate_rps=0.0))
+    with pytest.raises(PacketError):
+        engine.add(ImuSample(t=-0.5, yaw_rate_rps=0.0))
+    engine.add(OdometerSample(t=0.15, distance_m=1.5))  # late: rolled back and replayed
+    assert engine.state.late_rejected == 1
