@@ -117,22 +117,3 @@ def test_a_write_failing_elsewhere_in_the_turn_fails_the_group(
     assert all(isinstance(r, sqlite3.OperationalError) for r in results)
     assert _logged(tmp_path / "trips.db", a.id) == []
     assert store.get(a.id, "").packets == 0
-
-
-def test_a_waiter_that_goes_away_leaves_the_others_waiting(store: SessionStore,
-                                                           tmp_path: Path) -> None:
-    a = store.create("", "a", {"sensors": "gps_only"})
-    b = store.create("", "b", {"sensors": "gps_only"})
-    group = GroupCommit(store)
-
-    async def main() -> None:
-        gone = asyncio.create_task(_send(store, group, a, GPS[:3]))
-        stays = asyncio.create_task(_send(store, group, b, GPS[:3]))
-        await asyncio.sleep(0)  # both have ingested and wait for the commit
-        gone.cancel()  # the client hung up: its batch is committed all the same
-        await stays
-        assert gone.cancelled()
-
-    asyncio.run(main())
-    assert _logged(tmp_path / "trips.db", a.id) == GPS[:3]
-    assert _logged(tmp_path / "trips.db", b.id) == GPS[:3]

@@ -33,34 +33,31 @@ class GroupCommit:
 
     def __init__(self, store: SessionStore) -> None:
         self._store = store
-        self._waiters: list[asyncio.Future[None]] = []  # of the commit to come
+        self._next: asyncio.Future[None] | None = None
         self._rollbacks_before = 0
 
     async def durable(self) -> None:
         """Return once everything ingested so far is committed; raises sqlite3.Error if it
         was not (the store has then rebuilt the sessions concerned from the log)."""
-        loop = asyncio.get_running_loop()
-        if not self._waiters:
+        if self._next is None:
+            loop = asyncio.get_running_loop()
+            self._next = loop.create_future()
             self._rollbacks_before = self._store.rollbacks
             loop.call_soon(self._commit)
-        waiter = loop.create_future()  # one each: a waiter that goes away cancels only its own
-        self._waiters.append(waiter)
-        await waiter
+        await asyncio.shield(self._next)  # a waiter that goes away must not cancel the rest
 
     def _commit(self) -> None:
-        waiters, self._waiters = self._waiters, []
+        done, self._next = self._next, None
+        assert done is not None
         try:
             self._store.commit()
             if self._store.rollbacks != self._rollbacks_before:  # another write failed first
                 raise sqlite3.OperationalError("the trip log dropped this turn's batches")
         except sqlite3.Error as exc:
-            for w in waiters:
-                if not w.done():
-                    w.set_exception(exc)
+            done.set_exception(exc)
+            done.exception()  # retrieved here too: every waiter may be gone
         else:
-            for w in waiters:
-                if not w.done():
-                    w.set_result(None)
+            done.set_result(None)
 
 
 @dataclass
