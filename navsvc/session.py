@@ -238,8 +238,6 @@ class SessionStore:
         self.max_sessions_per_owner = max_sessions_per_owner
         self._clock = clock
         self._sessions: dict[str, LiveSession] = {}
-        self._uncommitted: dict[str, LiveSession] = {}  # batches in the log, not committed
-        self.rollbacks = 0  # failed writes so far: each dropped every uncommitted batch
 
     def __len__(self) -> int:
         return len(self._sessions)
@@ -255,7 +253,6 @@ class SessionStore:
                               options=options, created_unix=time.time(),
                               vehicle=VehicleSession(config, self.graph),
                               last_seen=self._clock())
-        self.commit()  # its own transaction: the pending batches first
         self.triplog.create_session(LoggedSession(session.id, owner, vehicle_id, options,
                                                   session.created_unix))
         self._sessions[session.id] = session
@@ -271,58 +268,34 @@ class SessionStore:
     def sessions(self, owner: str) -> list[LiveSession]:
         return [s for s in self._sessions.values() if s.owner == owner]
 
-    def ingest(self, session: LiveSession, records: list[Any], records_json: str | None = None,
-               *, commit: bool = True) -> BatchResult:
-        """Apply a batch, then log its accepted packets; with ``commit`` (the default) returns
-        once they are on disk. With ``commit=False`` the caller must :meth:`commit` before it
-        acknowledges them: the API commits all the batches of one event-loop turn at once.
+    def ingest(self, session: LiveSession, records: list[Any],
+               records_json: str | None = None) -> BatchResult:
+        """Apply a batch, then log its accepted packets; returns once they are on disk.
 
         ``records_json``, the batch as the JSON array it arrived in, is logged as it is when
         every packet is accepted (the common case), which saves encoding it again.
 
-        If the log cannot be written, every session with packets not yet committed is rebuilt
-        from its log, so that memory never holds packets the log lacks, and the error
-        propagates (nothing acknowledged).
+        If the log cannot be written the session is rebuilt from its log, so that memory
+        never holds packets the log lacks, and the error propagates (nothing acknowledged).
         """
         result = session.vehicle.add_records(records)
         refused = {r.index for r in result.rejections}
         accepted = [r for i, r in enumerate(records) if i not in refused
                     and not (isinstance(r, dict) and r.get("kind") == "truth")]
-        self._uncommitted[session.id] = session
         try:
             self.triplog.append(session.id, session.packets, accepted,
                                 records_json if len(accepted) == len(records) else None)
         except sqlite3.Error:
-            self._rebuild_uncommitted()
+            log.exception("session %s: trip log write failed; rebuilding from the log",
+                          session.id)
+            self._sessions[session.id] = self._replay(
+                LoggedSession(session.id, session.owner, session.vehicle_id, session.options,
+                              session.created_unix), session.rejected)
             raise
         session.packets += len(accepted)
         session.rejected += len(result.rejections)
         session.last_seen = self._clock()
-        if commit:
-            self.commit()
         return result
-
-    def commit(self) -> None:
-        """Make the batches ingested so far durable."""
-        try:
-            self.triplog.commit()
-        except sqlite3.Error:
-            self._rebuild_uncommitted()
-            raise
-        self._uncommitted.clear()
-
-    def _rebuild_uncommitted(self) -> None:
-        """After a failed write: drop what the log did not take and rebuild the sessions
-        that had packets in it from their logs."""
-        self.rollbacks += 1
-        self.triplog.rollback()
-        for s in self._uncommitted.values():
-            log.error("session %s: trip log write failed; rebuilding from the log", s.id)
-            if s.id in self._sessions:
-                self._sessions[s.id] = self._replay(
-                    LoggedSession(s.id, s.owner, s.vehicle_id, s.options, s.created_unix),
-                    s.rejected)
-        self._uncommitted.clear()
 
     def delete(self, session_id: str, owner: str) -> None:
         self.get(session_id, owner)
@@ -358,6 +331,5 @@ class SessionStore:
                            last_seen=self._clock())
 
     def _close(self, session_id: str) -> None:
-        self.commit()
         self.triplog.close_session(session_id)
         del self._sessions[session_id]

@@ -1,12 +1,11 @@
 """The trip log: every accepted packet of every live session, on disk before it is acknowledged.
 
 An SQLite file beside the road-graph database (``maps/monaco.db`` → ``maps/monaco.trips.db``)
-in WAL mode. A batch's accepted packets are committed before the reply leaves (the API commits
-the batches of one event-loop turn together), so a server killed at any moment has every
-acknowledged packet on disk; on restart
+in WAL mode. A batch's accepted packets are written in one transaction and committed before the
+reply leaves, so a server killed at any moment has every acknowledged packet on disk; on restart
 :class:`navsvc.session.SessionStore` replays the open sessions' logs through fresh sessions.
 With ``synchronous=NORMAL`` (the default here) a commit survives the process crashing; pass
-``sync="full"`` to also survive the machine losing power, at an fsync per commit.
+``sync="full"`` to also survive the machine losing power, at an fsync per batch.
 
 Only the API's event loop uses a TripLog, so one connection serves it. Checkpoints (copying
 the WAL into the database file, with an fsync) run every second in a thread of their own, on
@@ -105,53 +104,37 @@ class TripLog:
         self._checkpointer.join()
         self._db.close()
 
-    def commit(self) -> None:
-        """Make everything written since the last commit durable."""
-        if self._db.in_transaction:
-            self._db.execute("COMMIT")
-
-    def rollback(self) -> None:
-        """Drop everything written since the last commit."""
-        if self._db.in_transaction:
-            self._db.execute("ROLLBACK")
-
-    def _begin(self) -> None:
-        if not self._db.in_transaction:
-            self._db.execute("BEGIN")
-
     def create_session(self, session: LoggedSession) -> None:
-        """Log a new session, and commit."""
-        self._begin()
-        self._db.execute(
-            "INSERT INTO sessions (id, owner, vehicle_id, options, created_unix) "
-            "VALUES (?, ?, ?, ?, ?)",
-            (session.id, session.owner, session.vehicle_id, json.dumps(session.options),
-             session.created_unix))
-        self.commit()
+        with self._db:
+            self._db.execute("BEGIN")
+            self._db.execute(
+                "INSERT INTO sessions (id, owner, vehicle_id, options, created_unix) "
+                "VALUES (?, ?, ?, ?, ?)",
+                (session.id, session.owner, session.vehicle_id, json.dumps(session.options),
+                 session.created_unix))
 
     def append(self, session_id: str, first_seq: int, records: Sequence[Any],
                records_json: str | None = None) -> None:
-        """Write a batch of accepted packets (seq numbers from ``first_seq``), not yet
-        committed: :meth:`commit` makes it durable, so that one commit can serve the
-        batches of many sessions. ``records_json`` is their JSON array when the caller has
-        it already.
+        """Write a batch of accepted packets (seq numbers from ``first_seq``) and commit;
+        ``records_json`` is their JSON array when the caller has it already.
 
         One row a batch: encoding and inserting packet by packet cost a fifth of the
         service's time per packet."""
         if not records:
             return
-        self._begin()
-        self._db.execute(
-            "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
-            (session_id, first_seq, len(records),
-             _ENCODER.encode(records) if records_json is None else records_json))
+        with self._db:
+            self._db.execute("BEGIN")
+            self._db.execute(
+                "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
+                (session_id, first_seq, len(records),
+                 _ENCODER.encode(records) if records_json is None else records_json))
 
     def close_session(self, session_id: str) -> None:
         """Mark a session ended (deleted or expired) and drop its packets."""
-        self._begin()
-        self._db.execute("UPDATE sessions SET closed = 1 WHERE id = ?", (session_id,))
-        self._db.execute("DELETE FROM batches WHERE session_id = ?", (session_id,))
-        self.commit()
+        with self._db:
+            self._db.execute("BEGIN")
+            self._db.execute("UPDATE sessions SET closed = 1 WHERE id = ?", (session_id,))
+            self._db.execute("DELETE FROM batches WHERE session_id = ?", (session_id,))
 
     def open_sessions(self) -> list[LoggedSession]:
         rows = self._db.execute(

@@ -95,7 +95,6 @@ def test_the_checkpointer_moves_the_wal_into_the_database(tmp_path: Path) -> Non
     batch = [{**GPS[0], "note": "x" * 1000}] * 100
     for k in range(20):  # about 2 MB
         log.append("s1", 100 * k, batch)
-        log.commit()
     deadline = time.monotonic() + 10.0
     while path.stat().st_size < 1_000_000 and time.monotonic() < deadline:
         time.sleep(0.05)

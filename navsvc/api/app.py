@@ -20,7 +20,7 @@ from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from navsvc import __version__
-from navsvc.api.deps import AppState, GroupCommit
+from navsvc.api.deps import AppState
 from navsvc.api.routes import maps, match, ops, sessions, stream
 from navsvc.api.settings import Settings
 from navsvc.errors import ConfigError, LimitExceeded, NavsvcError, SessionNotFound, TraceError
@@ -43,8 +43,7 @@ def create_app(settings: Settings) -> FastAPI:
     triplog = TripLog(settings.triplog, sync=settings.triplog_sync)
     store = SessionStore(graph, triplog, idle_timeout_s=settings.session_idle_s,
                          max_sessions_per_owner=settings.max_sessions_per_key)
-    state = AppState(settings=settings, graph=graph, store=store, metrics=Metrics(),
-                     commits=GroupCommit(store))
+    state = AppState(settings=settings, graph=graph, store=store, metrics=Metrics())
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:

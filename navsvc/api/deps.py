@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import asyncio
 import secrets
-import sqlite3
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -21,52 +19,12 @@ _api_key = APIKeyHeader(name=API_KEY_HEADER, auto_error=False,
                         description="required when the server has NAVSVC_API_KEYS set")
 
 
-class GroupCommit:
-    """One trip-log commit for all the batches ingested in one turn of the event loop.
-
-    A commit costs 30-90 µs whatever it holds; with hundreds of sessions each sending ten
-    messages a second that was a tenth of the server's time. A handler ingests its batch
-    without committing, then awaits :meth:`durable`; the first one in a turn schedules the
-    commit for the start of the next turn, after every handler that was ready has ingested.
-    Replies wait for it, so nothing is acknowledged before it is on disk.
-    """
-
-    def __init__(self, store: SessionStore) -> None:
-        self._store = store
-        self._next: asyncio.Future[None] | None = None
-        self._rollbacks_before = 0
-
-    async def durable(self) -> None:
-        """Return once everything ingested so far is committed; raises sqlite3.Error if it
-        was not (the store has then rebuilt the sessions concerned from the log)."""
-        if self._next is None:
-            loop = asyncio.get_running_loop()
-            self._next = loop.create_future()
-            self._rollbacks_before = self._store.rollbacks
-            loop.call_soon(self._commit)
-        await asyncio.shield(self._next)  # a waiter that goes away must not cancel the rest
-
-    def _commit(self) -> None:
-        done, self._next = self._next, None
-        assert done is not None
-        try:
-            self._store.commit()
-            if self._store.rollbacks != self._rollbacks_before:  # another write failed first
-                raise sqlite3.OperationalError("the trip log dropped this turn's batches")
-        except sqlite3.Error as exc:
-            done.set_exception(exc)
-            done.exception()  # retrieved here too: every waiter may be gone
-        else:
-            done.set_result(None)
-
-
 @dataclass
 class AppState:
     settings: Settings
     graph: RoadGraph
     store: SessionStore
     metrics: Metrics
-    commits: GroupCommit
 
 
 def get_state(request: Request) -> AppState:

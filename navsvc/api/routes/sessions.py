@@ -25,17 +25,16 @@ def session_info(state: AppState, s: LiveSession) -> SessionInfo:
         position=None if position is None else position_json(position, state.graph.frame))
 
 
-async def ingest(state: AppState, session: LiveSession, packets: list[Any],
-                 packets_json: str | None = None) -> BatchReply:
-    """Apply a batch (API and WebSocket alike), count it, and describe the result once it
-    is committed (``packets_json``: the batch's JSON array as received, for the trip log)."""
+def ingest(state: AppState, session: LiveSession, packets: list[Any],
+           packets_json: str | None = None) -> BatchReply:
+    """Apply a batch (API and WebSocket alike), count it, and describe the result
+    (``packets_json``: the batch's JSON array as received, for the trip log)."""
     limit = state.settings.max_batch_packets
     if len(packets) > limit:
         raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
     start = time.perf_counter()
     try:
-        result: BatchResult = state.store.ingest(session, packets, packets_json, commit=False)
-        await state.commits.durable()
+        result: BatchResult = state.store.ingest(session, packets, packets_json)
     except sqlite3.Error as exc:
         raise HTTPException(503, f"the trip log cannot be written ({exc}); the batch was not "
                                  "applied, send it again") from exc
@@ -91,7 +90,7 @@ async def post_packets(
                         {"t": 0.01, "kind": "imu", "yaw_rate_dps": 1.5}]]),
 ) -> BatchReply:
     """Apply packets in order; the reply comes once the accepted ones are in the trip log."""
-    return await ingest(state, state.store.get(session_id, owner), packets)
+    return ingest(state, state.store.get(session_id, owner), packets)
 
 
 @router.get("/{session_id}/position", responses={200: {"description": "matched position"}})

@@ -73,7 +73,7 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
     try:
         while True:
             text = await websocket.receive_text()
-            replies.put(await _answer(state, session_id, owner, text))
+            replies.put(_answer(state, session_id, owner, text))
             await asyncio.sleep(0)  # let the sender run between messages
     except WebSocketDisconnect:
         pass
@@ -81,7 +81,7 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
         sender.cancel()
 
 
-async def _answer(state: AppState, session_id: str, owner: str, text: str) -> dict[str, Any]:
+def _answer(state: AppState, session_id: str, owner: str, text: str) -> dict[str, Any]:
     try:
         message = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -92,7 +92,7 @@ async def _answer(state: AppState, session_id: str, owner: str, text: str) -> di
         ([message], f"[{text}]")
     try:
         session = state.store.get(session_id, owner)  # it may have expired meanwhile
-        reply = await ingest(state, session, packets, packets_json)
+        reply = ingest(state, session, packets, packets_json)
     except SessionNotFound as exc:
         return _error("session_not_found", str(exc))
     except HTTPException as exc:
