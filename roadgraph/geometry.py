@@ -119,7 +119,8 @@ def project_onto_polyline(coords: FloatArray, x_m: float, y_m: float) -> Polylin
 
     Zero-length segments are allowed; the bearing then comes from the nearest non-degenerate one.
     """
-    return PolylineProjection(*_project(coords, x_m, y_m))
+    offset, distance, x, y, bearing, segment = _project(coords, x_m, y_m)
+    return PolylineProjection(offset, distance, x, y, normalize_bearing_rad(bearing), segment)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -145,10 +146,7 @@ def _project(coords: FloatArray, x_m: float, y_m: float
     dx, dy = coords[j + 1, 0] - coords[j, 0], coords[j + 1, 1] - coords[j, 1]
     px = coords[best_i, 0] + best_t * (coords[best_i + 1, 0] - coords[best_i, 0])
     py = coords[best_i, 1] + best_t * (coords[best_i + 1, 1] - coords[best_i, 1])
-    bearing = math.atan2(dx, dy)  # to [0, 2π) as normalize_bearing_rad does
-    if bearing < 0.0:
-        bearing = bearing + TWO_PI if bearing + TWO_PI < TWO_PI else 0.0
-    return best_off, math.sqrt(best_d2), px, py, bearing, best_i
+    return best_off, math.sqrt(best_d2), px, py, math.atan2(dx, dy), best_i
 
 
 @numba.njit(cache=True, nogil=True)

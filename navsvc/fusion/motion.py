@@ -89,12 +89,7 @@ def propagate(x: Array, dt_s: float, accel_fwd_mps2: float | None,
     ``noise.turn_rate_tau_s`` (GPS only: no sensor measures the turn rate) the turn rate is a
     first-order Gauss-Markov process, so a turn does not go on for ever in an outage.
     """
-    if accel_fwd_mps2 is None:
-        accel, densities = math.nan, noise.densities
-    else:
-        accel, densities = accel_fwd_mps2, noise.densities_with_accel
-    return _propagate(x, dt_s, accel, densities,
-                      math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
+    return _propagate(x, dt_s, *_model_args(accel_fwd_mps2, noise))
 
 
 def predict(x: Array, P: Array, dt_s: float, max_step_s: float, accel_fwd_mps2: float | None,
@@ -102,12 +97,17 @@ def predict(x: Array, P: Array, dt_s: float, max_step_s: float, accel_fwd_mps2: 
     """State and covariance ``dt_s`` on, in steps of at most ``max_step_s`` (each
     :func:`propagate`, then ``F P Fᵀ + Q``), in one compiled call: the filter makes one per
     inertial sample, and one per GPS fix in a GPS-only session."""
+    return _predict(x, P, dt_s, max_step_s, *_model_args(accel_fwd_mps2, noise))
+
+
+def _model_args(accel_fwd_mps2: float | None,
+                noise: ProcessNoise) -> tuple[float, Array, float]:
+    """The compiled model's arguments: acceleration, Q densities, turn-rate time constant
+    (NaN for "none", as the kernels take no Nones)."""
+    tau = math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s
     if accel_fwd_mps2 is None:
-        accel, densities = math.nan, noise.densities
-    else:
-        accel, densities = accel_fwd_mps2, noise.densities_with_accel
-    return _predict(x, P, dt_s, max_step_s, accel, densities,
-                    math.nan if noise.turn_rate_tau_s is None else noise.turn_rate_tau_s)
+        return math.nan, noise.densities, tau
+    return accel_fwd_mps2, noise.densities_with_accel, tau
 
 
 @jit
