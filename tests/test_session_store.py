@@ -71,6 +71,30 @@ def test_log_written_a_row_a_packet_is_moved_to_batches(tmp_path: Path) -> None:
                            ).fetchone() is None
 
 
+def test_batches_of_a_without_rowid_table_are_moved_over(tmp_path: Path) -> None:
+    path = tmp_path / "trips.db"
+    db = sqlite3.connect(path)
+    db.executescript("""
+        CREATE TABLE sessions (id TEXT PRIMARY KEY, owner TEXT NOT NULL,
+            vehicle_id TEXT NOT NULL, options TEXT NOT NULL, created_unix REAL NOT NULL,
+            closed INTEGER NOT NULL DEFAULT 0);
+        CREATE TABLE batches (session_id TEXT NOT NULL, seq INTEGER NOT NULL,
+            count INTEGER NOT NULL, records TEXT NOT NULL,
+            PRIMARY KEY (session_id, seq)) WITHOUT ROWID;
+        INSERT INTO sessions (id, owner, vehicle_id, options, created_unix)
+            VALUES ('s1', '', 'car', '{}', 0);
+        INSERT INTO batches VALUES ('s1', 2, 1, '[{"t":2.0}]'),
+                                   ('s1', 0, 2, '[{"t":0.0},{"t":1.0}]');
+    """)
+    db.close()
+    log = TripLog(path)
+    assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}, {"t": 2.0}]
+    sql = log._db.execute("SELECT sql FROM sqlite_master WHERE name = 'batches'").fetchone()[0]
+    assert "WITHOUT ROWID" not in sql.upper()
+    log.append("s1", 3, [{"t": 3.0}])
+    assert len(list(log.packets("s1"))) == 4
+
+
 def test_batch_json_as_received_is_logged_only_when_all_are_accepted(
         sample_graph: RoadGraph, tmp_path: Path) -> None:
     store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
@@ -101,3 +125,23 @@ def test_the_checkpointer_moves_the_wal_into_the_database(tmp_path: Path) -> Non
     assert path.stat().st_size >= 1_000_000
     log.close()
     assert not log._checkpointer.is_alive()
+
+
+def test_the_wal_starts_over_under_steady_writes(tmp_path: Path) -> None:
+    """A passive checkpoint alone never completes while the writer keeps committing, and the
+    WAL then grows for as long as the load lasts; the checkpointer finishes each one."""
+    path = tmp_path / "trips.db"
+    log = TripLog(path, checkpoint_every_s=0.05)
+    log.create_session(LoggedSession("s1", "", "car", {}, 0.0))
+    batch = json.dumps([{**GPS[0], "note": "x" * 4000}])
+    wal = path.with_name(path.name + "-wal")
+    seq, written, largest_wal = 0, 0, 0
+    start = time.monotonic()
+    while time.monotonic() - start < 2.0:
+        log.append("s1", seq, [None], batch)
+        seq, written = seq + 1, written + len(batch)
+        largest_wal = max(largest_wal, wal.stat().st_size)
+        time.sleep(0.0005)  # the service does other work between commits
+    log.close()
+    assert written > 2_000_000
+    assert largest_wal < written / 3
