@@ -1,25 +1,29 @@
 """Load on the real service: throughput, latency and memory with many WebSocket sessions.
 
 Starts ``navsvc serve`` as its own process on a copy of the map (loopback) and drives it from
-this process (asyncio, one WebSocket per session). All sessions replay the same simulated
-gyro + odometer drive (100 Hz IMU, 50 Hz odometer, 1 Hz GPS).
+this process (asyncio, one WebSocket per session). Sessions replay a simulated drive.
 
-- throughput: sessions send their packets as fast as the server answers (batches of 100);
-  packets per second accepted, end to end.
-- real rate: every 0.1 s each session sends the packets of that 0.1 s (10 IMU, 5 odometer,
-  and the GPS fix when there is one), each session from its own point of the drive (up to
-  60 s in) and its own offset within the second; latency is from sending a message that
-  holds a GPS fix to receiving the reply with its matched position.
+- throughput: gyro + odometer sessions (100 Hz IMU, 50 Hz odometer, 1 Hz GPS) send their
+  packets as fast as the server answers (batches of 100); packets per second accepted, end
+  to end.
+- real rate: every 0.1 s each session sends the packets of that 0.1 s (and the GPS fix when
+  there is one), each session from its own point of the drive (up to 60 s in) and at its
+  own phase of the 0.1 s; latency is from sending a message that holds a GPS fix to
+  receiving the reply with its matched position. ``gyro_accel`` sessions send what the issue
+  names, 100 Hz inertial (10 IMU packets a message) and 1 Hz GPS: 101 packets/s a session;
+  ``gyro_odometer`` sessions also send a 50 Hz wheel odometer (151 packets/s).
 - GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
 - memory: the server's resident memory before and after opening the sessions, per session.
 
 The server runs in one process, so it uses one core; the load generator takes the other (its
 garbage collector is off while it measures latency, as its pauses would be counted as the
 server's). "packets/s per core" is packets per second over the server's CPU use (user + system
-time per second of the run).
+time per second of the run); "CPU us/packet" is that CPU time per packet, and "cores needed"
+what the offered load would take at that cost (above 1 the server cannot keep up).
 
     python bench/service_load.py [--map maps/monaco.db] [--seconds 20]
-        [--real-rate 1,100,200] [--gps-only 1000] [--throughput 1,4]
+        [--real-rate 1,100,200] [--sensors gyro_accel,gyro_odometer] [--gps-only 1000]
+        [--throughput 1,4]
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from roadgraph import RoadGraph
 from tests.api.server import Server, start_server
 
 START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
+GOLDEN_RATIO = (1.0 + 5.0 ** 0.5) / 2.0  # k x this, mod 1: evenly spread, never repeating
 
 
 def rss_mb(pid: int) -> float:
@@ -61,10 +66,16 @@ def cpu_s(pid: int) -> float:
 
 
 def drive_packets(map_path: Path, seconds: float) -> list[dict[str, Any]]:
+    """The simulated drive's sensor packets (every kind; truth left out)."""
     drive = simulate_drive(RoadGraph.open(map_path), DriveSpec(duration_s=seconds, seed=7,
                                                                tunnels_block_gps=False))
-    kinds = set(SENSOR_KINDS["gyro_odometer"])
-    return [r for r in drive if r["kind"] in kinds]
+    return [r for r in drive if r["kind"] != "truth"]
+
+
+def sent_by(packets: list[dict[str, Any]], sensors: str) -> list[dict[str, Any]]:
+    """The packets a vehicle with this sensor configuration sends."""
+    kinds = set(SENSOR_KINDS[sensors])
+    return [p for p in packets if p["kind"] in kinds]
 
 
 def tick_batches(packets: list[dict[str, Any]], tick_s: float = 0.1) -> list[list[dict]]:
@@ -130,6 +141,8 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
     latencies: list[float] = []
     late = 0
     sent = 0
+    offered = sum(len(ticks[(k * 37) % START_SPREAD_TICKS + i])
+                  for k in range(sessions) for i in range(int(seconds * 10))) / seconds
     sockets = [await websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
                                         max_size=None) for sid in ids]
     start = time.perf_counter() + 0.5
@@ -141,7 +154,9 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
 
     async def one(k: int, ws: Any) -> None:
         nonlocal late, sent
-        offset = k / len(sockets)  # spread the sessions' GPS fixes over the second
+        # each session sends at its own phase of the 0.1 s tick, as independent vehicles do
+        # (k / sessions put sessions / 10 of them on the same instant, in bursts)
+        offset = 0.1 * ((k * GOLDEN_RATIO) % 1.0)
         # and start each session at its own point of the drive: in step, every session would
         # reach the same junction (and the matcher's costliest moments) in the same second
         first = (k * 37) % START_SPREAD_TICKS
@@ -170,8 +185,11 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
         await ws.close()
     await close_sessions(server, ids)
     lat_ms = sorted(1e3 * x for x in latencies)
+    cpu_per_packet = busy * elapsed / sent
     return {"scenario": f"real rate ({sensors})", "sessions": sessions, "packets": sent,
-            "seconds": elapsed, "packets_per_s": sent / elapsed,
+            "seconds": elapsed, "packets_per_s": sent / elapsed, "offered_per_s": offered,
+            "server_cpu_us_per_packet": 1e6 * cpu_per_packet,
+            "cores_needed": offered * cpu_per_packet,
             "latency_p50_ms": statistics.median(lat_ms),
             "latency_p99_ms": lat_ms[min(len(lat_ms) - 1, int(0.99 * len(lat_ms)))],
             "late_ticks": late, "server_cpu": busy, "client_cpu": client_busy,
@@ -184,11 +202,13 @@ def main() -> None:
     parser.add_argument("--map", type=Path, default=RESULTS.parent.parent / "maps" / "monaco.db")
     parser.add_argument("--seconds", type=float, default=20.0, help="real-rate run length")
     parser.add_argument("--real-rate", default="1,100,200", help="session counts")
+    parser.add_argument("--sensors", default="gyro_accel,gyro_odometer",
+                        help="sensor configurations of the real-rate sessions")
     parser.add_argument("--gps-only", default="1000", help="session counts")
     parser.add_argument("--throughput", default="1,4", help="session counts")
     args = parser.parse_args()
-    packets = drive_packets(args.map, args.seconds + START_SPREAD_TICKS / 10 + 5.0)
-    gps_ticks = [[p for p in batch if p["kind"] == "gps"] for batch in tick_batches(packets)]
+    drive = drive_packets(args.map, args.seconds + START_SPREAD_TICKS / 10 + 5.0)
+    packets = sent_by(drive, "gyro_odometer")
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / args.map.name
         shutil.copy(args.map, db)
@@ -199,21 +219,22 @@ def main() -> None:
             for n in map(int, filter(None, args.throughput.split(","))):
                 rows.append(asyncio.run(throughput(server, packets, n)))
                 print(rows[-1])
-            for n in map(int, filter(None, args.real_rate.split(","))):
-                rows.append(asyncio.run(real_rate(server, tick_batches(packets), n,
-                                                  args.seconds, "gyro_odometer")))
-                print(rows[-1])
-            for n in map(int, filter(None, args.gps_only.split(","))):
-                rows.append(asyncio.run(real_rate(server, gps_ticks, n, args.seconds,
-                                                  "gps_only")))
+            runs = [(sensors, int(n)) for sensors in filter(None, args.sensors.split(","))
+                    for n in filter(None, args.real_rate.split(","))]
+            runs += [("gps_only", int(n)) for n in filter(None, args.gps_only.split(","))]
+            for sensors, n in runs:
+                ticks = tick_batches(sent_by(drive, sensors))
+                rows.append(asyncio.run(real_rate(server, ticks, n, args.seconds, sensors)))
                 print(rows[-1])
         finally:
             server.stop()
     print_table("navsvc service under load (server: 1 process; loopback WebSocket)",
-                ["scenario", "sessions", "packets/s", "server CPU", "packets/s per core",
-                 "p50 ms", "p99 ms", "late ticks", "MB/session"],
-                [[r["scenario"], r["sessions"], r["packets_per_s"], r["server_cpu"],
-                  r["packets_per_s"] / max(r["server_cpu"], 1e-9),
+                ["scenario", "sessions", "offered/s", "packets/s", "server CPU",
+                 "packets/s per core", "CPU us/packet", "cores needed", "p50 ms", "p99 ms",
+                 "late ticks", "MB/session"],
+                [[r["scenario"], r["sessions"], r.get("offered_per_s", ""), r["packets_per_s"],
+                  r["server_cpu"], r["packets_per_s"] / max(r["server_cpu"], 1e-9),
+                  r.get("server_cpu_us_per_packet", ""), r.get("cores_needed", ""),
                   r.get("latency_p50_ms", ""), r.get("latency_p99_ms", ""),
                   r.get("late_ticks", ""), r.get("mb_per_session", "")] for r in rows])
     write_json("service_load", {"rows": rows})
