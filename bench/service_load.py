@@ -14,6 +14,8 @@ this process (asyncio, one WebSocket per session). Sessions replay a simulated d
   ``gyro_odometer`` sessions also send a 50 Hz wheel odometer (151 packets/s).
 - GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
 - memory: the server's resident memory before and after opening the sessions, per session.
+- floor: the real-rate runs against ``bench/ws_floor.py``, the same FastAPI + uvicorn
+  WebSocket stack answering without doing any work: what the transport alone costs.
 
 The server runs in one process, so it uses one core; the load generator takes the other (its
 garbage collector is off while it measures latency, as its pauses would be counted as the
@@ -23,7 +25,7 @@ what the offered load would take at that cost (above 1 the server cannot keep up
 
     python bench/service_load.py [--map maps/monaco.db] [--seconds 20]
         [--real-rate 1,100,200] [--sensors gyro_accel,gyro_odometer] [--gps-only 1000]
-        [--throughput 1,4]
+        [--throughput 1,4] [--floor 200]
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ import json
 import os
 import shutil
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -46,7 +50,7 @@ from report import RESULTS, print_table, write_json
 
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from roadgraph import RoadGraph
-from tests.api.server import Server, start_server
+from tests.api.server import Server, free_port, start_server
 
 START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
 GOLDEN_RATIO = (1.0 + 5.0 ** 0.5) / 2.0  # k x this, mod 1: evenly spread, never repeating
@@ -197,6 +201,23 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
             "mb_per_session": (after - before) / sessions}
 
 
+def start_floor(log: Path) -> Server:
+    """``bench/ws_floor.py`` on a free loopback port; returns once it answers."""
+    port = free_port()
+    process = subprocess.Popen([sys.executable, str(Path(__file__).with_name("ws_floor.py")),
+                                str(port)], stdout=log.open("ab"), stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(url + "/v1/healthz", timeout=1.0).status_code == 200:
+                return Server(url, f"ws://127.0.0.1:{port}", process, log)
+        except httpx.TransportError:
+            time.sleep(0.2)
+    process.kill()
+    raise RuntimeError(f"the floor server did not start: {log.read_text()}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--map", type=Path, default=RESULTS.parent.parent / "maps" / "monaco.db")
@@ -206,6 +227,9 @@ def main() -> None:
                         help="sensor configurations of the real-rate sessions")
     parser.add_argument("--gps-only", default="1000", help="session counts")
     parser.add_argument("--throughput", default="1,4", help="session counts")
+    parser.add_argument("--floor", default="200",
+                        help="session counts of real-rate runs against the bare WebSocket "
+                             "stack (bench/ws_floor.py)")
     args = parser.parse_args()
     drive = drive_packets(args.map, args.seconds + START_SPREAD_TICKS / 10 + 5.0)
     packets = sent_by(drive, "gyro_odometer")
@@ -228,6 +252,16 @@ def main() -> None:
                 print(rows[-1])
         finally:
             server.stop()
+        floor = start_floor(Path(tmp) / "floor.log")
+        try:
+            for sensors in filter(None, args.sensors.split(",")):
+                for n in map(int, filter(None, args.floor.split(","))):
+                    row = asyncio.run(real_rate(floor, tick_batches(sent_by(drive, sensors)), n,
+                                                args.seconds, sensors))
+                    rows.append({**row, "scenario": f"floor: bare stack ({sensors})"})
+                    print(rows[-1])
+        finally:
+            floor.stop()
     print_table("navsvc service under load (server: 1 process; loopback WebSocket)",
                 ["scenario", "sessions", "offered/s", "packets/s", "server CPU",
                  "packets/s per core", "CPU us/packet", "cores needed", "p50 ms", "p99 ms",
