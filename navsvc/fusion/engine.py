@@ -176,6 +176,7 @@ class FusionEngine:
         self.config = config
         self.frame = frame
         self.state = FusionState()
+        self._gyro = config.sensors not in (SensorConfig.STEERING_ODOMETER, SensorConfig.GPS_ONLY)
         # the reorder window: groups of packets applied, each with the state before its first
         self._history: deque[tuple[FusionState, list[Packet]]] = deque()
 
@@ -256,7 +257,8 @@ class FusionEngine:
                 return [self._estimate()] if s.initialized else []
             self._remember_odometer(packet)
             return []
-        self._propagate_to(packet.t)
+        gyro = packet.yaw_rate_rps if isinstance(packet, ImuSample) and self._gyro else None
+        self._propagate_to(packet.t, gyro)
         if isinstance(packet, GpsFix):
             self._fuse_gps(packet)
             s.last_output_t = packet.t
@@ -270,11 +272,15 @@ class FusionEngine:
             return [self._estimate()]
         return []
 
-    def _propagate_to(self, t: float) -> None:
+    def _propagate_to(self, t: float, gyro_rps: float | None = None) -> None:
+        """Predict to ``t``; with a gyro sample, its update too (one compiled call)."""
         s, cfg = self.state, self.config
         assert s.t is not None
-        if t - s.t > 1e-9:
-            accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
+        accel = s.accel_fwd_mps2 if cfg.sensors.speed_from_accel else None
+        if gyro_rps is not None:
+            s.x, s.P = motion.predict_with_gyro(s.x, s.P, max(t - s.t, 0.0), cfg.max_step_s,
+                                                accel, cfg.process, gyro_rps, cfg.gyro_sigma_rps)
+        elif t - s.t > 1e-9:
             s.x, s.P = motion.predict(s.x, s.P, t - s.t, cfg.max_step_s, accel, cfg.process)
         s.t = max(s.t, t)
 
@@ -293,10 +299,7 @@ class FusionEngine:
     # --- dead reckoning ------------------------------------------------------------------
     def _fuse_dead_reckoning(self, packet: Packet) -> None:
         cfg, x = self.config, self.state.x
-        if isinstance(packet, ImuSample):
-            if packet.yaw_rate_rps is not None and cfg.sensors not in (
-                    SensorConfig.STEERING_ODOMETER, SensorConfig.GPS_ONLY):
-                self._update(motion.gyro_rate(x, packet.yaw_rate_rps, cfg.gyro_sigma_rps))
+        if isinstance(packet, ImuSample):  # its gyro rate went in with the prediction
             if packet.accel_fwd_mps2 is not None:
                 self.state.accel_fwd_mps2 = packet.accel_fwd_mps2
             if packet.accel_left_mps2 is not None and \

@@ -77,12 +77,13 @@ def correct(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
     """Measurement update: innovation ``y = z - h(x)``, its NIS ``yᵀ S⁻¹ y`` against the gate
     ``max_nis``, then the Joseph-form update. Returns ``(x, P, nis)``; past the gate ``x`` and
     ``P`` come back as they were. One compiled call: the filter makes one per inertial sample."""
-    return _correct(x, P, _f64(z), _f64(h), _f64(H), _f64(R), max_nis)
+    return correct_compiled(x, P, _f64(z), _f64(h), _f64(H), _f64(R), max_nis)
 
 
 @jit
-def _correct(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
+def correct_compiled(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
              max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover - compiled
+    """:func:`correct` for compiled callers (float64 arrays)."""
     y = z - h
     PHt = matmul(P, H.T)
     S_inv = inverse(matmul(H, PHt) + R)

@@ -100,6 +100,16 @@ def predict(x: Array, P: Array, dt_s: float, max_step_s: float, accel_fwd_mps2: 
     return _predict(x, P, dt_s, max_step_s, *_model_args(accel_fwd_mps2, noise))
 
 
+def predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
+                      accel_fwd_mps2: float | None, noise: ProcessNoise,
+                      yaw_rate_left_rps: float, sigma_rps: float) -> tuple[Array, Array]:
+    """:func:`predict`, then the :func:`gyro_rate` update (not gated), in one compiled call:
+    the filter's step at every gyro sample, where two calls and the measurement's small
+    arrays cost more than the arithmetic."""
+    return _predict_with_gyro(x, P, dt_s, max_step_s, *_model_args(accel_fwd_mps2, noise),
+                              yaw_rate_left_rps, sigma_rps ** 2)
+
+
 def _model_args(accel_fwd_mps2: float | None,
                 noise: ProcessNoise) -> tuple[float, Array, float]:
     """The compiled model's arguments: acceleration, Q densities, turn-rate time constant
@@ -121,6 +131,21 @@ def _predict(x: Array, P: Array, dt_s: float, max_step_s: float, accel_fwd_mps2:
         P = kalman.predict(P, F, q)
         remaining -= step
     return x, P
+
+
+@jit
+def _predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
+                       accel_fwd_mps2: float, densities: Array, turn_rate_tau_s: float,
+                       yaw_rate_left_rps: float, variance: float
+                       ) -> tuple[Array, Array]:  # pragma: no cover - compiled
+    x, P = _predict(x, P, dt_s, max_step_s, accel_fwd_mps2, densities, turn_rate_tau_s)
+    h = -x[HEADING_RATE] + x[GYRO_BIAS]
+    x_new, P_new, nis = kalman.correct_compiled(
+        x, P, np.array([yaw_rate_left_rps]), np.array([h]), _GYRO_RATE_H,
+        np.array([[variance]]), np.inf)
+    if nis <= np.inf:  # a NaN innovation leaves the state as it was
+        x_new[HEADING] %= 2.0 * math.pi
+    return x_new, P_new
 
 
 @jit

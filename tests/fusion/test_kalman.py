@@ -3,7 +3,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from navsvc.fusion import kalman
+from navsvc.fusion import kalman, motion
 
 
 def test_scalar_update_by_hand() -> None:
@@ -58,3 +58,23 @@ def test_inverse_matches_numpy(values: list[float]) -> None:
     S = A @ A.T + np.eye(3)  # symmetric positive definite
     for n in (1, 2, 3):
         assert np.allclose(kalman.inverse(S[:n, :n]) @ S[:n, :n], np.eye(n), atol=1e-9)
+
+
+state = st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0, 6.28),
+                  st.floats(0, 40), st.floats(-1, 1), st.floats(-0.05, 0.05),
+                  st.floats(0.9, 1.1), st.floats(-0.5, 0.5))
+
+
+@given(state, st.floats(0.0, 0.35), st.floats(-2, 2), st.one_of(st.none(), st.floats(-5, 5)))
+def test_predict_with_gyro_is_predict_then_the_gyro_update(
+        x0: tuple[float, ...], dt: float, rate: float, accel: float | None) -> None:
+    """The fused compiled step gives what its two parts give."""
+    x = np.array(x0)
+    P = np.diag([4.0, 4.0, 0.01, 1.0, 0.01, 1e-4, 1e-3, 1e-2])
+    noise = motion.ProcessNoise()
+    fused_x, fused_P = motion.predict_with_gyro(x, P, dt, 0.1, accel, noise, rate, 0.005)
+    x1, P1 = (x, P) if dt <= 1e-9 else motion.predict(x, P, dt, 0.1, accel, noise)
+    x2, P2, _ = kalman.correct(x1, P1, *motion.gyro_rate(x1, rate, 0.005))
+    x2[motion.HEADING] %= 2.0 * np.pi
+    np.testing.assert_allclose(fused_x, x2, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(fused_P, P2, rtol=1e-12, atol=1e-15)
