@@ -84,7 +84,7 @@ def parse(obj: Any) -> Packet:
         known = ", ".join([*MODELS, "nmea", "oncore"])
         raise PacketError(RejectReason.UNKNOWN_KIND, f"kind {kind!r} (known: {known})")
     try:
-        packet = model.model_validate(obj)
+        packet = model.__pydantic_validator__.validate_python(obj)
     except ValidationError as exc:
         raise _packet_error(exc) from None
     return _to_core(packet)
@@ -124,30 +124,14 @@ def _packet_error(exc: ValidationError) -> PacketError:
 
 
 def _to_core(p: _Packet) -> Packet:
+    if isinstance(p, ImuPacket):  # the most frequent first
+        return _imu_to_core(p)
     if isinstance(p, GpsPacket):
         return GpsFix(
             t=p.t, lat_deg=p.lat, lon_deg=p.lon, alt_m=p.alt_m, speed_mps=p.speed_mps,
             heading_rad=None if p.heading_deg is None else math.radians(p.heading_deg % 360.0),
             hdop=p.hdop, sats=p.sats, fix=None if p.fix is None else GpsFixType(p.fix),
             accuracy_m=p.accuracy_m)
-    if isinstance(p, ImuPacket):
-        fields = (p.yaw_rate_dps, p.accel_fwd_mps2, p.accel_left_mps2, p.gyro_dps, p.accel_mps2)
-        if all(f is None for f in fields):
-            raise PacketError(RejectReason.MISSING_FIELD,
-                              "imu needs yaw_rate_dps, accel_fwd_mps2, accel_left_mps2, "
-                              "gyro_dps or accel_mps2")
-        yaw = p.yaw_rate_dps if p.yaw_rate_dps is not None else \
-            (p.gyro_dps[2] if p.gyro_dps is not None else None)
-        return ImuSample(
-            t=p.t, yaw_rate_rps=None if yaw is None else math.radians(yaw),
-            accel_fwd_mps2=p.accel_fwd_mps2 if p.accel_fwd_mps2 is not None else
-            (p.accel_mps2[0] if p.accel_mps2 is not None else None),
-            accel_left_mps2=p.accel_left_mps2 if p.accel_left_mps2 is not None else
-            (p.accel_mps2[1] if p.accel_mps2 is not None else None),
-            gyro_rps=None if p.gyro_dps is None else
-            (math.radians(p.gyro_dps[0]), math.radians(p.gyro_dps[1]),
-             math.radians(p.gyro_dps[2])),
-            accel_mps2=p.accel_mps2)
     if isinstance(p, OdometerPacket):
         if p.distance_m is None and p.ticks is None and p.speed_mps is None:
             raise PacketError(RejectReason.MISSING_FIELD,
@@ -156,6 +140,27 @@ def _to_core(p: _Packet) -> Packet:
                               speed_mps=p.speed_mps)
     assert isinstance(p, SteeringPacket)
     return SteeringSample(t=p.t, angle_rad=math.radians(p.angle_deg))
+
+
+def _imu_to_core(p: ImuPacket) -> ImuSample:
+    """The z-up rate and the planar accelerations from their own fields, else from the
+    6-axis ones."""
+    gyro, accel = p.gyro_dps, p.accel_mps2
+    yaw = p.yaw_rate_dps if p.yaw_rate_dps is not None else None if gyro is None else gyro[2]
+    fwd = p.accel_fwd_mps2 if p.accel_fwd_mps2 is not None else \
+        None if accel is None else accel[0]
+    left = p.accel_left_mps2 if p.accel_left_mps2 is not None else \
+        None if accel is None else accel[1]
+    if yaw is None and fwd is None and left is None:  # so no 6-axis field either
+        raise PacketError(RejectReason.MISSING_FIELD,
+                          "imu needs yaw_rate_dps, accel_fwd_mps2, accel_left_mps2, "
+                          "gyro_dps or accel_mps2")
+    return ImuSample(
+        t=p.t, yaw_rate_rps=None if yaw is None else math.radians(yaw), accel_fwd_mps2=fwd,
+        accel_left_mps2=left,
+        gyro_rps=None if gyro is None else
+        (math.radians(gyro[0]), math.radians(gyro[1]), math.radians(gyro[2])),
+        accel_mps2=accel)
 
 
 def _type(obj: Any) -> str:
