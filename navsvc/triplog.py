@@ -28,7 +28,9 @@ from typing import Any
 log = logging.getLogger(__name__)
 
 _ENCODER = json.JSONEncoder(separators=(",", ":"))
-WAL_SIZE_LIMIT_BYTES = 64 * 1024 * 1024  # a WAL that starts over is cut back to this size
+PASSIVE_CHECKPOINTS = 8  # at most, each second
+FRAMES_LEFT_FOR_RESTART = 256  # that one copies no more than about this many pages
+DROP_CHUNK_BATCHES = 64  # batches of ended sessions deleted in one transaction (a few ms)
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sessions (
@@ -88,7 +90,6 @@ class TripLog:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(f"PRAGMA synchronous={sync.upper()}")
         self._db.execute("PRAGMA wal_autocheckpoint=0")  # the checkpointer thread does it
-        self._db.execute(f"PRAGMA journal_size_limit={WAL_SIZE_LIMIT_BYTES}")
         batches = self._db.execute("SELECT sql FROM sqlite_master WHERE name = 'batches'"
                                    ).fetchone()
         if batches is not None and "WITHOUT ROWID" in batches[0].upper():
@@ -108,12 +109,17 @@ class TripLog:
         try:
             while not self._closing.wait(every_s):
                 try:
-                    db.execute("PRAGMA wal_checkpoint(PASSIVE)")  # never waits for the writer
-                    # then the frames committed meanwhile, holding the writer off for that
-                    # short time: only a complete checkpoint lets the WAL start over, and
-                    # under steady load a passive one never catches up (the WAL grew by
-                    # 40 MB/s at 2,000 batches/s)
-                    db.execute("PRAGMA wal_checkpoint(RESTART)")
+                    # Passive checkpoints never wait for the writer, but under steady load
+                    # one never catches up with it, and only a complete checkpoint lets the
+                    # WAL start over (it grew by 40 MB/s at 2,000 batches/s). So: passive
+                    # ones until few frames are left, then one that holds the writer off
+                    # while it copies those (if the writer outruns them all, next time).
+                    for _ in range(PASSIVE_CHECKPOINTS):
+                        _, frames, copied = db.execute("PRAGMA wal_checkpoint(PASSIVE)"
+                                                       ).fetchone()
+                        if frames - copied <= FRAMES_LEFT_FOR_RESTART:
+                            db.execute("PRAGMA wal_checkpoint(RESTART)")
+                            break
                 except sqlite3.Error as exc:  # try again next time: the WAL only grows
                     log.warning("trip log checkpoint failed: %s", exc)
         finally:
@@ -150,11 +156,27 @@ class TripLog:
                  _ENCODER.encode(records) if records_json is None else records_json))
 
     def close_session(self, session_id: str) -> None:
-        """Mark a session ended (deleted or expired) and drop its packets."""
+        """Mark a session ended (deleted or expired); :meth:`drop_closed` removes its log."""
         with self._db:
             self._db.execute("BEGIN")
             self._db.execute("UPDATE sessions SET closed = 1 WHERE id = ?", (session_id,))
-            self._db.execute("DELETE FROM batches WHERE session_id = ?", (session_id,))
+
+    def drop_closed(self, max_batches: int = DROP_CHUNK_BATCHES) -> int:
+        """Delete up to ``max_batches`` logged batches of ended sessions, and the ended
+        sessions once none is left; return how many batches went.
+
+        A chunk at a time, as the caller's turn allows: a session's batches lie among every
+        other session's (about three to a page), so each one dropped rewrites a page; at
+        close, 25 s of one session's batches took 30 ms, an hour's would take seconds."""
+        with self._db:
+            self._db.execute("BEGIN")
+            dropped: int = self._db.execute(
+                "DELETE FROM batches WHERE rowid IN (SELECT b.rowid FROM sessions s CROSS "
+                "JOIN batches b ON b.session_id = s.id WHERE s.closed = 1 LIMIT ?)",
+                (max_batches,)).rowcount
+            if dropped < max_batches:  # none left
+                self._db.execute("DELETE FROM sessions WHERE closed = 1")
+        return dropped
 
     def open_sessions(self) -> list[LoggedSession]:
         rows = self._db.execute(

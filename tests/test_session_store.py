@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import sqlite3
 import time
@@ -9,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from navsvc.api.app import _drop_closed_logs
 from navsvc.session import SessionStore
 from navsvc.triplog import LoggedSession, TripLog
 from roadgraph import RoadGraph
@@ -92,7 +94,7 @@ def test_batches_of_a_without_rowid_table_are_moved_over(tmp_path: Path) -> None
     sql = log._db.execute("SELECT sql FROM sqlite_master WHERE name = 'batches'").fetchone()[0]
     assert "WITHOUT ROWID" not in sql.upper()
     log.append("s1", 3, [{"t": 3.0}])
-    assert len(list(log.packets("s1"))) == 4
+    assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}, {"t": 2.0}, {"t": 3.0}]
 
 
 def test_batch_json_as_received_is_logged_only_when_all_are_accepted(
@@ -145,3 +147,42 @@ def test_the_wal_starts_over_under_steady_writes(tmp_path: Path) -> None:
     log.close()
     assert written > 2_000_000
     assert largest_wal < written / 3
+
+
+def test_an_ended_sessions_log_is_dropped_a_chunk_at_a_time(
+        sample_graph: RoadGraph, tmp_path: Path) -> None:
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    ended, kept = (store.create("", "car", {"sensors": "gps_only"}) for _ in range(2))
+    for fix in GPS:
+        store.ingest(ended, [fix])
+        store.ingest(kept, [fix])
+    log = store.triplog
+    store.delete(ended.id, "")  # cheap: only marked
+    assert log._db.execute("SELECT count(*) FROM batches").fetchone()[0] == 12
+    assert [s.id for s in log.open_sessions()] == [kept.id]
+    assert [log.drop_closed(max_batches=4) for _ in range(3)] == [4, 2, 0]
+    assert log._db.execute("SELECT count(*) FROM batches").fetchone()[0] == 6
+    assert log._db.execute("SELECT id FROM sessions").fetchall() == [(kept.id,)]
+    assert list(log.packets(kept.id)) == GPS
+
+
+def test_a_server_drops_ended_sessions_logs_in_the_background(
+        sample_graph: RoadGraph, tmp_path: Path) -> None:
+    """The API's upkeep task: a deleted session's batches go within a few seconds."""
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    session = store.create("", "car", {"sensors": "gps_only"})
+    for fix in GPS:
+        store.ingest(session, [fix])
+    store.delete(session.id, "")
+
+    async def run() -> int:
+        task = asyncio.create_task(_drop_closed_logs(store.triplog, period_s=0.01))
+        for _ in range(200):
+            await asyncio.sleep(0.01)
+            left = store.triplog._db.execute("SELECT count(*) FROM batches").fetchone()[0]
+            if left == 0:
+                break
+        task.cancel()
+        return int(left)
+
+    assert asyncio.run(run()) == 0

@@ -1,7 +1,8 @@
 """The FastAPI application: routers under ``/v1``, errors as JSON, limits, session upkeep.
 
 ``create_app(settings)`` opens the road graph and the trip log, restores the sessions that were
-open when the server last stopped (crash included), and expires idle sessions in the background.
+open when the server last stopped (crash included), and expires idle sessions and drops ended
+sessions' trip logs in the background.
 Every error body is ``{"error": {"code", "message"[, "fields"]}}``.
 """
 
@@ -11,6 +12,8 @@ import asyncio
 import contextlib
 import gc
 import logging
+import sqlite3
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
@@ -57,9 +60,11 @@ def create_app(settings: Settings) -> FastAPI:
         state.metrics.sessions.set(restored)
         log.info("serving map %r (%s); trip log %s; %d sessions restored", graph.map_id,
                  settings.map_path, settings.triplog, restored)
-        upkeep = asyncio.create_task(_expire_idle(state))
+        upkeep = [asyncio.create_task(_expire_idle(state)),
+                  asyncio.create_task(_drop_closed_logs(triplog))]
         yield
-        upkeep.cancel()
+        for task in upkeep:
+            task.cancel()
         triplog.close()
 
     app = FastAPI(title="navsvc", version=__version__, lifespan=lifespan,
@@ -92,6 +97,22 @@ async def _expire_idle(state: AppState) -> None:
         expired = state.store.expire_idle()
         state.metrics.sessions_expired.inc(len(expired))
         state.metrics.sessions.set(len(state.store))
+
+
+async def _drop_closed_logs(triplog: TripLog, period_s: float = 1.0) -> None:
+    """Remove ended sessions' logs a chunk at a time, busy at most a fifth of the time: the
+    rest is for requests, and for the checkpointer (a purge at full speed wrote the WAL
+    faster than it was copied, and the copies stalled the commits)."""
+    while True:
+        await asyncio.sleep(period_s)
+        try:
+            while True:
+                start = time.perf_counter()
+                if triplog.drop_closed() == 0:
+                    break
+                await asyncio.sleep(4.0 * (time.perf_counter() - start))
+        except sqlite3.Error as exc:  # the rows stay marked: the next round tries again
+            log.warning("dropping ended sessions' trip logs failed: %s", exc)
 
 
 def _error(status: int, message: str, **extra: Any) -> JSONResponse:
