@@ -148,12 +148,10 @@ class TripLog:
         service's time per packet."""
         if not records:
             return
-        with self._db:
-            self._db.execute("BEGIN")
-            self._db.execute(
-                "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
-                (session_id, first_seq, len(records),
-                 _ENCODER.encode(records) if records_json is None else records_json))
+        self._db.execute(  # one statement: its own transaction, committed when it returns
+            "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
+            (session_id, first_seq, len(records),
+             _ENCODER.encode(records) if records_json is None else records_json))
 
     def close_session(self, session_id: str) -> None:
         """Mark a session ended (deleted or expired); :meth:`drop_closed` removes its log."""

@@ -26,9 +26,11 @@ def session_info(state: AppState, s: LiveSession) -> SessionInfo:
 
 
 def ingest(state: AppState, session: LiveSession, packets: list[Any],
-           packets_json: str | None = None) -> BatchReply:
-    """Apply a batch (API and WebSocket alike), count it, and describe the result
-    (``packets_json``: the batch's JSON array as received, for the trip log)."""
+           packets_json: str | None = None) -> dict[str, Any]:
+    """Apply a batch (API and WebSocket alike), count it, and describe the result as the
+    JSON of a :class:`BatchReply` (``packets_json``: the batch's JSON array as received, for
+    the trip log). A plain dict: the WebSocket sends it as it is, and building and dumping
+    the model for each message cost more than the rest of its reply."""
     limit = state.settings.max_batch_packets
     if len(packets) > limit:
         raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
@@ -46,9 +48,8 @@ def ingest(state: AppState, session: LiveSession, packets: list[Any],
     for r in result.rejections:
         m.packets_rejected.labels(r.reason.code).inc()
     m.positions.inc(len(positions))
-    return BatchReply(accepted=result.accepted,
-                      rejected=[r.to_json() for r in result.rejections],  # type: ignore[misc]
-                      positions=positions)
+    return {"accepted": result.accepted, "rejected": [r.to_json() for r in result.rejections],
+            "positions": positions}
 
 
 @router.post("", status_code=201, response_model=SessionInfo,
@@ -88,7 +89,7 @@ async def post_packets(
                     "alone and reported by index", examples=[[
                         {"t": 0.0, "kind": "gps", "lat": 43.7384, "lon": 7.4246},
                         {"t": 0.01, "kind": "imu", "yaw_rate_dps": 1.5}]]),
-) -> BatchReply:
+) -> dict[str, Any]:
     """Apply packets in order; the reply comes once the accepted ones are in the trip log."""
     return ingest(state, state.store.get(session_id, owner), packets)
 

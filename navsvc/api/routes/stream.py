@@ -97,7 +97,7 @@ def _answer(state: AppState, session_id: str, owner: str, text: str) -> dict[str
         return _error("session_not_found", str(exc))
     except HTTPException as exc:
         return _error(_HTTP_CODES.get(exc.status_code, "error"), str(exc.detail))
-    return {"type": "result", **reply.model_dump()}
+    return {"type": "result", **reply}
 
 
 _HTTP_CODES = {413: "too_many_packets", 503: "unavailable"}
