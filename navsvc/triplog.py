@@ -10,8 +10,10 @@ With ``synchronous=NORMAL`` (the default here) a commit survives the process cra
 Only the API's event loop uses a TripLog, so one connection serves it. Checkpoints (copying
 the WAL into the database file, with an fsync) run every second in a thread of their own, on
 their own connection, instead of inside whichever commit crossed SQLite's 1,000-page mark:
-there they stalled the event loop for 20 ms every 0.6 s with 1,000 GPS-only sessions. Each
-ends with a short blocking pass so that the WAL starts over instead of growing under load.
+there they stalled the event loop for 20 ms every 0.6 s with 1,000 GPS-only sessions. Once
+few pages are left to copy, a short blocking pass lets the WAL start over instead of growing
+under load. An ended session is only marked; :meth:`TripLog.drop_closed` deletes its batches
+later, a chunk at a time.
 """
 
 from __future__ import annotations
