@@ -37,7 +37,6 @@ import json
 import os
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -50,7 +49,7 @@ from report import RESULTS, print_table, write_json
 
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from roadgraph import RoadGraph
-from tests.api.server import Server, free_port, start_server
+from tests.api.server import Server, start_process, start_server
 
 START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
 GOLDEN_RATIO = (1.0 + 5.0 ** 0.5) / 2.0  # k x this, mod 1: evenly spread, never repeating
@@ -203,19 +202,8 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
 
 def start_floor(log: Path) -> Server:
     """``bench/ws_floor.py`` on a free loopback port; returns once it answers."""
-    port = free_port()
-    process = subprocess.Popen([sys.executable, str(Path(__file__).with_name("ws_floor.py")),
-                                str(port)], stdout=log.open("ab"), stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60.0
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(url + "/v1/healthz", timeout=1.0).status_code == 200:
-                return Server(url, f"ws://127.0.0.1:{port}", process, log)
-        except httpx.TransportError:
-            time.sleep(0.2)
-    process.kill()
-    raise RuntimeError(f"the floor server did not start: {log.read_text()}")
+    floor = str(Path(__file__).with_name("ws_floor.py"))
+    return start_process(lambda port: [sys.executable, floor, str(port)], log)
 
 
 def main() -> None:

@@ -8,6 +8,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,12 +48,19 @@ class Server:
 
 def start_server(db: Path, log: Path, env: dict[str, str] | None = None) -> Server:
     """``python -m navsvc serve --map DB`` on a free loopback port; returns once healthy."""
+    return start_process(lambda port: [
+        sys.executable, "-m", "navsvc", "serve", "--map", str(db), "--host", "127.0.0.1",
+        "--port", str(port)], log, env)
+
+
+def start_process(command: Callable[[int], list[str]], log: Path,
+                  env: dict[str, str] | None = None) -> Server:
+    """A server ``command(port)`` on a free loopback port; returns once ``/v1/healthz``
+    answers."""
     port = free_port()
     out = log.open("ab")
-    process = subprocess.Popen(
-        [sys.executable, "-m", "navsvc", "serve", "--map", str(db), "--host", "127.0.0.1",
-         "--port", str(port)],
-        stdout=out, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})})
+    process = subprocess.Popen(command(port), stdout=out, stderr=subprocess.STDOUT,
+                               env={**os.environ, **(env or {})})
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 90.0
     while time.monotonic() < deadline:
