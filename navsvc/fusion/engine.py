@@ -545,8 +545,8 @@ def _reset_variance(P: Array, i: int, variance: float) -> None:
 
 
 def _snapshot(state: FusionState) -> FusionState:
-    """A copy that later updates cannot reach (taken at every packet: kept cheap; the only
-    mutable fields are the two arrays, ``gps`` is frozen)."""
+    """A copy that later updates cannot reach (taken every ``SNAPSHOT_EVERY`` packets: kept
+    cheap; the only mutable fields are the two arrays, ``gps`` is frozen)."""
     snap = object.__new__(FusionState)  # copy.copy took a third of the time, for the same
     snap.__dict__.update(state.__dict__)
     snap.x = state.x.copy()

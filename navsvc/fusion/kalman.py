@@ -82,7 +82,7 @@ def correct(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
 
 @jit
 def correct_compiled(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
-             max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover - compiled
+                     max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover
     """:func:`correct` for compiled callers (float64 arrays)."""
     y = z - h
     PHt = matmul(P, H.T)

@@ -139,9 +139,8 @@ def _predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
                        yaw_rate_left_rps: float, variance: float
                        ) -> tuple[Array, Array]:  # pragma: no cover - compiled
     x, P = _predict(x, P, dt_s, max_step_s, accel_fwd_mps2, densities, turn_rate_tau_s)
-    h = -x[HEADING_RATE] + x[GYRO_BIAS]
     x_new, P_new, nis = kalman.correct_compiled(
-        x, P, np.array([yaw_rate_left_rps]), np.array([h]), _GYRO_RATE_H,
+        x, P, np.array([yaw_rate_left_rps]), np.array([_gyro_rate_h(x)]), _GYRO_RATE_H,
         np.array([[variance]]), np.inf)
     if nis <= np.inf:  # a NaN innovation leaves the state as it was
         x_new[HEADING] %= 2.0 * math.pi
@@ -196,9 +195,14 @@ _GYRO_RATE_H.flags.writeable = False
 
 def gyro_rate(x: Array, yaw_rate_left_rps: float, sigma_rps: float) -> Measurement:
     """The gyro's z-up rate: ``-heading_rate + bias``."""
-    h = -x[HEADING_RATE] + x[GYRO_BIAS]
-    return (np.array([yaw_rate_left_rps]), np.array([h]), _GYRO_RATE_H,
+    return (np.array([yaw_rate_left_rps]), np.array([_gyro_rate_h(x)]), _GYRO_RATE_H,
             np.array([[sigma_rps ** 2]]))
+
+
+@jit
+def _gyro_rate_h(x: Array) -> float:  # pragma: no cover - compiled
+    """The gyro rate the state predicts (:func:`gyro_rate`; compiled, for the fused step)."""
+    return float(-x[HEADING_RATE] + x[GYRO_BIAS])
 
 
 def odometer_speed(x: Array, speed_mps: float, sigma_mps: float) -> Measurement:
