@@ -133,13 +133,11 @@ class TripLog:
         self._db.close()
 
     def create_session(self, session: LoggedSession) -> None:
-        with self._db:
-            self._db.execute("BEGIN")
-            self._db.execute(
-                "INSERT INTO sessions (id, owner, vehicle_id, options, created_unix) "
-                "VALUES (?, ?, ?, ?, ?)",
-                (session.id, session.owner, session.vehicle_id, json.dumps(session.options),
-                 session.created_unix))
+        self._db.execute(  # one statement: its own transaction
+            "INSERT INTO sessions (id, owner, vehicle_id, options, created_unix) "
+            "VALUES (?, ?, ?, ?, ?)",
+            (session.id, session.owner, session.vehicle_id, json.dumps(session.options),
+             session.created_unix))
 
     def append(self, session_id: str, first_seq: int, records: Sequence[Any],
                records_json: str | None = None) -> None:
@@ -157,9 +155,7 @@ class TripLog:
 
     def close_session(self, session_id: str) -> None:
         """Mark a session ended (deleted or expired); :meth:`drop_closed` removes its log."""
-        with self._db:
-            self._db.execute("BEGIN")
-            self._db.execute("UPDATE sessions SET closed = 1 WHERE id = ?", (session_id,))
+        self._db.execute("UPDATE sessions SET closed = 1 WHERE id = ?", (session_id,))
 
     def drop_closed(self, max_batches: int = DROP_CHUNK_BATCHES) -> int:
         """Delete up to ``max_batches`` logged batches of ended sessions, and the ended
