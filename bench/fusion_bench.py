@@ -20,9 +20,9 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from report import median_us, print_table, write_json
 
-from navsvc.fusion import kalman, motion
-from navsvc.fusion.engine import FusionConfig
-from navsvc.fusion.motion import N_STATES, SensorConfig
+from navsvc.fusion import FusionConfig, SensorConfig, kalman
+from navsvc.fusion.road import motion
+from navsvc.fusion.road.motion import N_STATES
 
 DT_S = 0.01  # 100 Hz inertial rate
 

@@ -18,8 +18,7 @@ from typing import Any
 from report import drives_parser, print_table, write_json
 from tqdm import tqdm
 
-from navsvc.fusion.engine import FusionConfig, GpsMode
-from navsvc.fusion.motion import SensorConfig
+from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
 from navsvc.session import SessionConfig, VehicleSession
 from navsvc.sim.evaluate import evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive

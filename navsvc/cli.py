@@ -21,8 +21,7 @@ from typing import Any
 from tqdm import tqdm
 
 from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
-from navsvc.fusion.engine import GpsMode
-from navsvc.fusion.motion import SensorConfig
+from navsvc.fusion import GpsMode, SensorConfig
 from navsvc.matching.hmm import HmmConfig
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import Evaluation, evaluate

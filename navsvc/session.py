@@ -30,10 +30,17 @@ from navsvc.errors import (
     RejectReason,
     SessionNotFound,
 )
-from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
-from navsvc.fusion.ins import Integration, Mechanisation
-from navsvc.fusion.motion import SensorConfig, road_constraint
-from navsvc.fusion.strapdown import StrapdownEngine, StrapdownOptions
+from navsvc.fusion import (
+    FusionConfig,
+    FusionEngine,
+    GpsMode,
+    Integration,
+    Mechanisation,
+    SensorConfig,
+    StrapdownEngine,
+    StrapdownOptions,
+)
+from navsvc.fusion.road.motion import road_constraint
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
 from navsvc.triplog import LoggedSession, TripLog
 from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState

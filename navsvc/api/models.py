@@ -10,9 +10,7 @@ from typing import Any, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from navsvc.fusion.engine import GpsMode
-from navsvc.fusion.ins import Integration, Mechanisation
-from navsvc.fusion.motion import SensorConfig
+from navsvc.fusion import GpsMode, Integration, Mechanisation, SensorConfig
 
 
 class SessionCreate(BaseModel):

@@ -2,7 +2,7 @@
 
 Seed: Mayhew 1999, chapter 5. The filter predicts at every inertial, odometer or steering
 sample with the real time step, and corrects with each sensor's measurement model
-(:mod:`navsvc.fusion.motion`). GPS arrives asynchronously (about 1 Hz) and is fused by one of
+(:mod:`navsvc.fusion.road.motion`). GPS arrives asynchronously (about 1 Hz) and is fused by one of
 three modes: ``ekf`` (Kalman update with chi-square gating), ``rules`` (thesis 5.4) or
 ``fuzzy`` (thesis 5.5). While the odometer reads no motion for 20+ samples the vehicle is
 stationary: zero-velocity updates hold it and calibrate the gyro bias (thesis: gyro centre).
@@ -25,11 +25,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from navsvc.errors import ConfigError, PacketError, RejectReason
-from navsvc.fusion import kalman, motion
-from navsvc.fusion.gps_fuzzy import THESIS_SETS, FuzzySets, fuzzy_weights
-from navsvc.fusion.gps_rules import GpsAction, GpsDecision, RuleParams, decide_rules
-from navsvc.fusion.kalman import Array
-from navsvc.fusion.motion import (
+from navsvc.fusion import kalman
+from navsvc.fusion._jit import Array
+from navsvc.fusion.road import motion
+from navsvc.fusion.road.fuzzy import THESIS_SETS, FuzzySets, fuzzy_weights
+from navsvc.fusion.road.motion import (
     GYRO_BIAS,
     HEADING,
     HEADING_RATE,
@@ -41,6 +41,7 @@ from navsvc.fusion.motion import (
     ProcessNoise,
     SensorConfig,
 )
+from navsvc.fusion.road.rules import GpsAction, GpsDecision, RuleParams, decide_rules
 from navsvc.types import (
     FusedEstimate,
     GpsFix,
@@ -172,7 +173,7 @@ class FusionEngine:
                  frame: LocalFrame | None = None) -> None:
         if config.sensors == SensorConfig.STRAPDOWN:
             raise ConfigError("the strapdown configuration runs in StrapdownEngine "
-                              "(navsvc.fusion.strapdown)")
+                              "(navsvc.fusion.ins.strapdown)")
         self.config = config
         self.frame = frame
         self.state = FusionState()

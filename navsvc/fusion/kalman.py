@@ -15,17 +15,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
-import numpy.typing as npt
 
-Array = npt.NDArray[np.float64]
+from navsvc.fusion._jit import Array, jit
 
 # chi-square quantiles (probability 0.999) by degrees of freedom, for innovation gating
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467}
-
-jit = numba.njit(cache=True, fastmath=False, nogil=True)
-
 
 @jit
 def matmul(A: Array, B: Array) -> Array:  # pragma: no cover - compiled

@@ -32,8 +32,8 @@ from navsvc.fusion.ins import (
     Mechanisation,
     NavState,
     euler_to_dcm,
+    ins_filter,
 )
-from navsvc.fusion.ins_direct import ins_filter
 
 
 def _read(path: Path, columns: int, what: str) -> Array:

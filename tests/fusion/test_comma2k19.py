@@ -2,8 +2,7 @@
 
 import pytest
 
-from navsvc.fusion.engine import FusionConfig
-from navsvc.fusion.motion import SensorConfig
+from navsvc.fusion import FusionConfig, SensorConfig
 from navsvc.session import SessionConfig, VehicleSession
 from navsvc.sim.comma2k19 import WHEELBASE_M, Gnss, read_segment
 from navsvc.sim.evaluate import evaluate

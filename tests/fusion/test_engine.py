@@ -6,8 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError, PacketError
-from navsvc.fusion.engine import FusionConfig, FusionEngine, GpsMode
-from navsvc.fusion.motion import SensorConfig
+from navsvc.fusion import FusionConfig, FusionEngine, GpsMode, SensorConfig
 from navsvc.sim.simulate import DriveSpec, simulate_drive
 from navsvc.types import GpsFix, ImuSample, OdometerSample
 from navsvc.wire.packets import parse

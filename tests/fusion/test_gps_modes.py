@@ -1,7 +1,7 @@
 import pytest
 
-from navsvc.fusion.gps_fuzzy import THESIS_SETS, fuzzy_weights, rule_strengths, trapezoid
-from navsvc.fusion.gps_rules import GpsAction, RuleParams, decide_rules, per_fix_weight
+from navsvc.fusion.road.fuzzy import THESIS_SETS, fuzzy_weights, rule_strengths, trapezoid
+from navsvc.fusion.road.rules import GpsAction, RuleParams, decide_rules, per_fix_weight
 
 
 def test_trapezoid() -> None:

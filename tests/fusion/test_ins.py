@@ -20,12 +20,12 @@ from navsvc.fusion.ins import (
     NavState,
     dcm_to_euler,
     euler_to_dcm,
+    ins_filter,
     level_from_accel,
     normal_gravity_mps2,
     radii_m,
     replay,
 )
-from navsvc.fusion.ins_direct import ins_filter
 from navsvc.wire.kfgins import gnss_fixes, read_gnss, read_imu, read_profile
 from tests.conftest import DATA
 

@@ -3,7 +3,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from navsvc.fusion import kalman, motion
+from navsvc.fusion import kalman
+from navsvc.fusion.road import motion
 
 
 def test_scalar_update_by_hand() -> None:

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError
-from navsvc.fusion.strapdown import StrapdownEngine
+from navsvc.fusion.ins.strapdown import StrapdownEngine
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive

@@ -2,8 +2,8 @@
 
 Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md) compare three integrations. The two indirect
 ones (``feedback``, ``feedforward``) estimate the error of the inertial solution, in
-``ins.InsFilter``. Here the filter's state is the navigation solution (the paper's set N) and its
-system model is the equations of motion themselves:
+:class:`.error_state.InsFilter`. Here the filter's state is the navigation solution (the
+paper's set N) and its system model is the equations of motion themselves:
 
 - state (21): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
   gyro and accelerometer biases (rad/s, m/s²) and scale factors;
@@ -27,26 +27,19 @@ from collections.abc import Callable
 
 import numpy as np
 
-from navsvc.fusion.ins import (
+from navsvc.fusion._jit import Array, jit
+from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm
+from navsvc.fusion.ins.earth import EarthModel, nav_rates, normal_gravity_mps2, radii_m
+from navsvc.fusion.ins.error_state import (
     N_ERR,
     POS,
-    Array,
-    EarthModel,
     GnssFix,
     ImuNoise,
     InsFilter,
     Integration,
-    Mechanisation,
-    NavState,
-    _earth_rate_b,
-    _rates,
-    dcm_to_euler,
-    euler_to_dcm,
-    jit,
-    mechanise,
-    normal_gravity_mps2,
-    radii_m,
+    earth_rate_body,
 )
+from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise
 
 # central-difference steps per state: about 0.1 m, 1 mm/s, 2 arc-seconds, tiny biases
 STEP = np.array([1.5e-8, 1.5e-8, 0.1, 1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5,
@@ -62,7 +55,7 @@ def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, rotating: f
     lat, h, v = x[0], x[2], x[3:6]
     rm, rn = radii_m(lat)
     c = euler_to_dcm(x[6], x[7], x[8])
-    w_ie, w_en = _rates(lat, h, v, rotating)
+    w_ie, w_en = nav_rates(lat, h, v, rotating)
     out = np.empty(N_ERR)
     out[0] = v[0] / (rm + h)
     out[1] = v[1] / ((rn + h) * math.cos(lat))
@@ -214,7 +207,7 @@ class DirectInsFilter(InsFilter):
 
     def _rest_residual(self, gyro_rps: Array) -> tuple[Array, Array]:
         def still(x: Array) -> Array:
-            rate = _earth_rate_b(nav_state(self.state.t, x), self._rotating)
+            rate = earth_rate_body(nav_state(self.state.t, x), self._rotating)
             return np.concatenate([x[3:6], gyro_rps - x[9:12] - rate])
 
         return self._numeric(still)

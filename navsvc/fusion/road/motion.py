@@ -30,7 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from navsvc.fusion import kalman
-from navsvc.fusion.kalman import Array, jit
+from navsvc.fusion._jit import Array, jit
 
 X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS = range(8)
 N_STATES = 8

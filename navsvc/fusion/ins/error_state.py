@@ -1,15 +1,8 @@
-"""Strapdown inertial navigation and its loosely coupled GNSS error-state EKF (pure).
+"""The INS's loosely coupled GNSS error-state EKF (pure): the ``feedback`` and ``feedforward``
+integrations.
 
-Seed: Giroux, Gourdeau, Landry 2005 (see docs/seed-digest.md). Conventions follow KF-GINS so that
-its data and results compare directly: navigation frame north-east-down (NED), body frame
-forward-right-down, attitude as the direction-cosine matrix ``C_bn`` (body to navigation),
-position as geodetic latitude/longitude (radians) and ellipsoidal height (m) on WGS84, IMU input
-as angle and velocity increments over each sample interval.
+Seed: Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md); conventions as KF-GINS.
 
-- Mechanisation: earth rate, transport rate and normal gravity (``EarthModel.WGS84``) or a
-  flat, non-rotating earth (``FLAT``); ``first_order`` (rotation-vector attitude update,
-  mid-point position) or the paper's ``rk4`` on the continuous equations with the rates held
-  over the step.
 - Error state (21, as KF-GINS): position error (NED, m), velocity error (NED, m/s), attitude
   error ψ (rad; estimated attitude = (I + [ψ×]) true), gyro and accelerometer biases (rad/s,
   m/s²) and scale factors (measured = (1 + scale) true + bias), each a first-order
@@ -18,30 +11,25 @@ as angle and velocity increments over each sample interval.
   biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
   open loop; the output is that solution less the estimated error, which keeps propagating);
   the paper's third, ``direct`` (the EKF over the navigation state itself), is
-  ``ins_direct.DirectInsFilter``, on the same measurement interface.
+  :class:`navsvc.fusion.ins.total_state.DirectInsFilter`, on the same measurement interface.
 - GNSS position updates with lever arm and a chi-square gate, GNSS velocity; body-frame
-  velocity updates for
-  wheel speed, the non-holonomic constraint (no sideways or vertical motion) and stops.
+  velocity updates for wheel speed, the non-holonomic constraint (no sideways or vertical
+  motion) and stops.
 """
 
 from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-import numba
 import numpy as np
-import numpy.typing as npt
 
-Array = npt.NDArray[np.float64]
-# compiled like the 2-D filter's kernels: at 100-200 Hz, NumPy's per-call overhead on 3-vectors
-# and 15x15 matrices cost more than the arithmetic
-jit = numba.njit(cache=True, nogil=True)
+from navsvc.fusion._jit import Array, jit
+from navsvc.fusion.ins.attitude import dcm_to_euler, skew
+from navsvc.fusion.ins.earth import EARTH_RATE_RPS, EarthModel, nav_rates, radii_m
+from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise, sample_problem
 
-WGS84_A = 6378137.0
-WGS84_E2 = 6.69437999014e-3
-EARTH_RATE_RPS = 7.2921151467e-5
 N_ERR = 21
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
 SG, SA = slice(15, 18), slice(18, 21)  # gyro and accelerometer scale factors
@@ -49,221 +37,14 @@ CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
 CHI2_6DOF_999 = 22.46
 GATE_FLOOR_M = 0.5
 GATED_BEFORE_SOFT = 3
-MAX_RATE_RPS = math.radians(2000.0)  # consumer gyros saturate about here
-MAX_ACCEL_MPS2 = 16.0 * 9.80665
 
 
 class Integration(enum.Enum):
     FEEDBACK = "feedback"
     FEEDFORWARD = "feedforward"
-    DIRECT = "direct"  # the EKF over the navigation state itself: ins_direct.DirectInsFilter
+    DIRECT = "direct"  # the EKF over the navigation state itself: total_state.DirectInsFilter
 
 
-class EarthModel(enum.Enum):
-    WGS84 = "wgs84"  # earth rate and transport rate
-    FLAT = "flat"  # neither (the paper found no significant difference)
-
-
-class Mechanisation(enum.Enum):
-    FIRST_ORDER = "first_order"
-    RK4 = "rk4"
-
-
-# --- earth model and rotations --------------------------------------------------------------
-@jit
-def radii_m(lat_rad: float) -> tuple[float, float]:
-    """Meridian and prime-vertical radii of curvature (RM, RN)."""
-    s2 = math.sin(lat_rad) ** 2
-    w = math.sqrt(1.0 - WGS84_E2 * s2)
-    return WGS84_A * (1.0 - WGS84_E2) / w**3, WGS84_A / w
-
-
-@jit
-def normal_gravity_mps2(lat_rad: float, h_m: float) -> float:
-    """Somigliana normal gravity with the free-air height correction."""
-    s2 = math.sin(lat_rad) ** 2
-    g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
-    return g0 - 3.086e-6 * h_m
-
-
-@jit
-def skew(v: Array) -> Array:
-    m = np.zeros((3, 3))
-    m[0, 1], m[0, 2], m[1, 0] = -v[2], v[1], v[2]
-    m[1, 2], m[2, 0], m[2, 1] = -v[0], -v[1], v[0]
-    return m
-
-
-@jit
-def rotation(rotvec: Array) -> Array:
-    """The rotation matrix of a rotation vector (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
-    k = skew(rotvec)
-    if angle < 1e-9:
-        return np.eye(3) + k + 0.5 * k @ k
-    return np.eye(3) + math.sin(angle) / angle * k + (1.0 - math.cos(angle)) / angle**2 * k @ k
-
-
-@jit
-def euler_to_dcm(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Array:
-    """C_bn from roll, pitch, yaw (Z-Y-X rotation sequence)."""
-    cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), \
-        math.sin(pitch_rad)
-    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
-    c = np.empty((3, 3))
-    c[0, 0], c[0, 1], c[0, 2] = cp * cy, -cr * sy + sr * sp * cy, sr * sy + cr * sp * cy
-    c[1, 0], c[1, 1], c[1, 2] = cp * sy, cr * cy + sr * sp * sy, -sr * cy + cr * sp * sy
-    c[2, 0], c[2, 1], c[2, 2] = -sp, sr * cp, cr * cp
-    return c
-
-
-@jit
-def dcm_to_euler(c: Array) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) of C_bn; yaw in [0, 2π)."""
-    pitch = math.atan2(-c[2, 0], math.hypot(c[2, 1], c[2, 2]))
-    return math.atan2(c[2, 1], c[2, 2]), pitch, math.atan2(c[1, 0], c[0, 0]) % (2 * math.pi)
-
-
-def level_from_accel(mean_f_b: Array) -> tuple[float, float]:
-    """Roll and pitch from the mean specific force of a static interval (coarse levelling)."""
-    fx, fy, fz = mean_f_b
-    return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
-
-
-# --- navigation state and mechanisation ----------------------------------------------------
-@dataclass
-class NavState:
-    """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, and the estimates of
-    the sensors' biases and scale factors."""
-
-    t: float
-    lat_rad: float
-    lon_rad: float
-    h_m: float
-    v_ned: Array
-    c_bn: Array
-    gyro_bias_rps: Array = field(default_factory=lambda: np.zeros(3))
-    accel_bias_mps2: Array = field(default_factory=lambda: np.zeros(3))
-    gyro_scale: Array = field(default_factory=lambda: np.zeros(3))
-    accel_scale: Array = field(default_factory=lambda: np.zeros(3))
-
-    def copy(self) -> NavState:
-        return NavState(self.t, self.lat_rad, self.lon_rad, self.h_m, self.v_ned.copy(),
-                        self.c_bn.copy(), self.gyro_bias_rps.copy(),
-                        self.accel_bias_mps2.copy(), self.gyro_scale.copy(),
-                        self.accel_scale.copy())
-
-    def compensate(self, dtheta: Array, dvel: Array, dt: float) -> tuple[Array, Array]:
-        """IMU increments less the estimated bias and scale errors."""
-        return _compensate(dtheta, dvel, dt, self.gyro_bias_rps, self.accel_bias_mps2,
-                           self.gyro_scale, self.accel_scale)
-
-
-@jit
-def _compensate(dtheta: Array, dvel: Array, dt: float, bg: Array, ba: Array, sg: Array,
-                sa: Array) -> tuple[Array, Array]:
-    return (dtheta - bg * dt) / (1.0 + sg), (dvel - ba * dt) / (1.0 + sa)
-
-
-@jit
-def _sample_problem(dtheta: Array, dvel: Array, dt: float) -> str:
-    """Why an IMU sample cannot be used ("" when it can)."""
-    for i in range(3):
-        if not (math.isfinite(dtheta[i]) and math.isfinite(dvel[i])):
-            return "is not finite"
-    for i in range(3):
-        if abs(dtheta[i]) > MAX_RATE_RPS * dt or abs(dvel[i]) > MAX_ACCEL_MPS2 * dt:
-            return "is saturated"
-    return ""
-
-
-@jit
-def _rates(lat: float, h: float, v: Array, rotating: float) -> tuple[Array, Array]:
-    """Earth rate and transport rate in the navigation frame (both zero on a flat earth:
-    ``rotating`` 0)."""
-    rm, rn = radii_m(lat)
-    w_ie = rotating * EARTH_RATE_RPS * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-    w_en = rotating * np.array([v[1] / (rn + h), -v[0] / (rm + h),
-                                -v[1] * math.tan(lat) / (rn + h)])
-    return w_ie, w_en
-
-
-@jit
-def _derivatives(lat: float, h: float, v: Array, c: Array, w_ib: Array, f_b: Array,
-                 rotating: float) -> tuple[Array, Array, Array]:
-    """d(lat, lon, h)/dt, dv/dt, dC/dt of the continuous strapdown equations."""
-    rm, rn = radii_m(lat)
-    w_ie, w_en = _rates(lat, h, v, rotating)
-    g = np.array([0.0, 0.0, normal_gravity_mps2(lat, h)])
-    dpos = np.array([v[0] / (rm + h), v[1] / ((rn + h) * math.cos(lat)), -v[2]])
-    dv = c @ f_b + g - np.cross(2.0 * w_ie + w_en, v)
-    dc = c @ skew(w_ib) - skew(w_ie + w_en) @ c
-    return dpos, dv, dc
-
-
-def mechanise(s: NavState, t: float, dtheta: Array, dvel: Array,
-              method: Mechanisation = Mechanisation.FIRST_ORDER,
-              earth: EarthModel = EarthModel.WGS84) -> tuple[NavState, Array]:
-    """Advance the navigation state by one IMU interval; return it and the specific force in
-    the navigation frame (for the error model). The increments are compensated already
-    (:meth:`NavState.compensate`)."""
-    rotating = 1.0 if earth == EarthModel.WGS84 else 0.0
-    dt = t - s.t
-    out = s.copy()
-    out.t = t
-    if method == Mechanisation.RK4:
-        return _rk4(s, out, dt, dtheta, dvel, rotating)
-    out.lat_rad, out.lon_rad, out.h_m, out.v_ned, out.c_bn, f_n = _first_order(
-        s.lat_rad, s.lon_rad, s.h_m, s.v_ned, s.c_bn, dtheta, dvel, dt, rotating)
-    return out, f_n
-
-
-@jit
-def _first_order(lat: float, lon: float, h: float, v: Array, c: Array, dtheta: Array,
-                 dvel: Array, dt: float,
-                 rotating: float) -> tuple[float, float, float, Array, Array, Array]:
-    w_ie, w_en = _rates(lat, h, v, rotating)
-    dv_b = dvel + 0.5 * np.cross(dtheta, dvel)  # rotation compensation
-    dv_n = c @ dv_b
-    g = np.array([0.0, 0.0, normal_gravity_mps2(lat, h)])
-    v_new = v + dv_n + (g - np.cross(2.0 * w_ie + w_en, v)) * dt
-    v_mid = 0.5 * (v + v_new)
-    rm, rn = radii_m(lat)
-    h_new = h - v_mid[2] * dt
-    h_mid = 0.5 * (h + h_new)
-    lat_new = lat + v_mid[0] / (rm + h_mid) * dt
-    lon_new = lon + v_mid[1] / ((rn + h_mid) * math.cos(0.5 * (lat + lat_new))) * dt
-    c_new = rotation(-(w_ie + w_en) * dt) @ c @ rotation(dtheta)
-    return lat_new, lon_new, h_new, v_new, c_new, dv_n / dt
-
-
-def _rk4(s: NavState, out: NavState, dt: float, dtheta: Array, dvel: Array,
-         rotating: float) -> tuple[NavState, Array]:
-    pos, out.v_ned, out.c_bn = _rk4_kernel(np.array([s.lat_rad, s.lon_rad, s.h_m]), s.v_ned,
-                                           s.c_bn, dtheta / dt, dvel / dt, dt, rotating)
-    out.lat_rad, out.lon_rad, out.h_m = float(pos[0]), float(pos[1]), float(pos[2])
-    return out, s.c_bn @ (dvel / dt)
-
-
-@jit
-def _rk4_kernel(pos: Array, v: Array, c: Array, w_ib: Array, f_b: Array, dt: float,
-                rotating: float) -> tuple[Array, Array, Array]:
-    """The paper's 4th-order Runge–Kutta step, the body rates held over the interval."""
-    p1, v1, c1 = _derivatives(pos[0], pos[2], v, c, w_ib, f_b, rotating)
-    p2, v2, c2 = _derivatives(pos[0] + dt / 2 * p1[0], pos[2] + dt / 2 * p1[2],
-                              v + dt / 2 * v1, c + dt / 2 * c1, w_ib, f_b, rotating)
-    p3, v3, c3 = _derivatives(pos[0] + dt / 2 * p2[0], pos[2] + dt / 2 * p2[2],
-                              v + dt / 2 * v2, c + dt / 2 * c2, w_ib, f_b, rotating)
-    p4, v4, c4 = _derivatives(pos[0] + dt * p3[0], pos[2] + dt * p3[2],
-                              v + dt * v3, c + dt * c3, w_ib, f_b, rotating)
-    pos_new = pos + dt / 6.0 * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
-    v_new = v + dt / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
-    c_new = c + dt / 6.0 * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
-    u, _, vt = np.linalg.svd(c_new)  # back to a rotation matrix
-    return pos_new, v_new, u @ vt
-
-
-# --- the error-state filter ------------------------------------------------------------------
 @dataclass(frozen=True)
 class ImuNoise:
     """Continuous noise densities and bias processes (KF-GINS's units converted to SI)."""
@@ -345,7 +126,7 @@ class InsFilter:
         dt = t - self.state.t
         if not dt > 0.0:
             raise ValueError(f"IMU time must increase: {t} after {self.state.t}")
-        problem = _sample_problem(dtheta, dvel, dt)
+        problem = sample_problem(dtheta, dvel, dt)
         if problem:
             raise ValueError(f"IMU sample at t={t} {problem}")
 
@@ -437,7 +218,7 @@ class InsFilter:
         h = np.zeros((6, N_ERR))
         h[0:3, VEL] = np.eye(3)
         h[3:6, BG] = np.eye(3)  # the residual rate is the bias error (true - estimate)
-        return np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - _earth_rate_b(
+        return np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - earth_rate_body(
             s, self._rotating)]), h
 
     def _gated_update(self, y: Array, h: Array, r: Array, chi2: float) -> bool:
@@ -479,7 +260,7 @@ class InsFilter:
         self.dx = np.zeros(N_ERR)
 
 
-def _earth_rate_b(s: NavState, rotating: float) -> Array:
+def earth_rate_body(s: NavState, rotating: float) -> Array:
     """The earth's rotation as the body's gyros see it."""
     return s.c_bn.T @ (rotating * EARTH_RATE_RPS * np.array(
         [math.cos(s.lat_rad), 0.0, -math.sin(s.lat_rad)]))
@@ -490,7 +271,7 @@ def _transition(lat: float, h: float, v: Array, c: Array, f_n: Array, w_b: Array
                 dt: float, tau: float, rotating: float) -> Array:
     """Φ = I + F dt of the ψ-angle error model with Gauss–Markov biases and scale factors
     (``w_b``, ``f_b``: the compensated body rate and specific force)."""
-    w_ie, w_en = _rates(lat, h, v, rotating)
+    w_ie, w_en = nav_rates(lat, h, v, rotating)
     f = np.zeros((N_ERR, N_ERR))
     f[0:3, 3:6] = np.eye(3)
     f[3:6, 6:9] = -skew(f_n)

@@ -24,23 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from navsvc.errors import ConfigError, PacketError, RejectReason
+from navsvc.fusion._jit import Array
 from navsvc.fusion.engine import FusionConfig, gps_problem, gps_sigma_m
-from navsvc.fusion.ins import (
-    MAX_ACCEL_MPS2,
-    MAX_RATE_RPS,
-    Array,
-    GnssFix,
-    ImuNoise,
-    InsFilter,
-    Integration,
-    Mechanisation,
-    NavState,
-    dcm_to_euler,
-    euler_to_dcm,
-    level_from_accel,
-)
-from navsvc.fusion.ins_direct import ins_filter
-from navsvc.fusion.motion import SensorConfig
+from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
+from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
+from navsvc.fusion.ins.mechanisation import MAX_ACCEL_MPS2, MAX_RATE_RPS, Mechanisation, NavState
+from navsvc.fusion.ins.total_state import ins_filter
+from navsvc.fusion.road.motion import SensorConfig
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
 
@@ -90,7 +80,7 @@ class StrapdownEngine:
         self.ins: InsFilter | None = None
         self._mount = euler_to_dcm(*np.radians(options.mounting_rpy_deg)) @ FLU_TO_FRD
         self._still_f: deque[Array] = deque(maxlen=options.level_window)
-        self._rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
+        self.nav_rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
         self._t: float | None = None
         self._last_output_t: float | None = None
         self._standing = True
@@ -139,7 +129,7 @@ class StrapdownEngine:
             self._constrain(p.t)
         elif self.ins is None and self._standing:
             self._still_f.append(accel)
-        self._rates, self._t = (gyro, accel), p.t
+        self.nav_rates, self._t = (gyro, accel), p.t
         if self.ins is not None and self._last_output_t is not None and \
                 p.t - self._last_output_t >= self.config.output_interval_s:
             self._last_output_t = p.t
@@ -149,11 +139,11 @@ class StrapdownEngine:
     def _predict_to(self, t: float) -> bool:
         """Carry the INS to ``t`` on the last IMU rates (held); False when it is not running
         yet or already there. Runs before any other change a packet makes, as it may refuse."""
-        if self.ins is None or self._rates is None or t <= self.ins.state.t:
+        if self.ins is None or self.nav_rates is None or t <= self.ins.state.t:
             return False
         dt = t - self.ins.state.t
         try:
-            self.ins.predict(t, self._rates[0] * dt, self._rates[1] * dt)
+            self.ins.predict(t, self.nav_rates[0] * dt, self.nav_rates[1] * dt)
         except ValueError as exc:  # saturated or non-finite sample: hold, report
             raise PacketError(RejectReason.OUT_OF_RANGE, str(exc)) from None
         return True
@@ -162,7 +152,7 @@ class StrapdownEngine:
         """The non-holonomic constraint: a road vehicle does not slide sideways or leave the
         road surface (body y and z velocity zero), applied at ``nhc_rate_hz``."""
         o = self.options
-        assert self.ins is not None and self._rates is not None
+        assert self.ins is not None and self.nav_rates is not None
         if not o.nhc or (self._last_nhc_t is not None and
                          t - self._last_nhc_t < 1.0 / o.nhc_rate_hz):
             return
@@ -171,7 +161,7 @@ class StrapdownEngine:
         if self._standing and math.hypot(v[0], v[1]) < o.still_speed_mps * 2.0:
             # standing (GPS says so and the INS agrees): zero velocity and rate calibrate
             # the gyro while heading cannot be seen
-            self.ins.update_rest(self._rates[0], o.rest_gyro_sigma_rps, o.nhc_sigma_mps)
+            self.ins.update_rest(self.nav_rates[0], o.rest_gyro_sigma_rps, o.nhc_sigma_mps)
         else:
             self.ins.update_body_velocity(np.zeros(3), (1, 2), np.full(3, o.nhc_sigma_mps))
 
@@ -288,8 +278,8 @@ class StrapdownEngine:
         x, y = self.frame.to_local(math.degrees(s.lon_rad), math.degrees(s.lat_rad))
         p = self.ins.position_cov_ned_m2()
         cov = np.array([[p[1, 1], p[1, 0]], [p[0, 1], p[0, 0]]])  # (east, north) = (x, y)
-        yaw_rate = 0.0 if self._rates is None else float(
-            (s.c_bn @ (self._rates[0] - s.gyro_bias_rps))[2])
+        yaw_rate = 0.0 if self.nav_rates is None else float(
+            (s.c_bn @ (self.nav_rates[0] - s.gyro_bias_rps))[2])
         return FusedEstimate(t=s.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(s.c_bn)[2],
                              speed_mps=float(math.hypot(s.v_ned[0], s.v_ned[1])),
                              yaw_rate_rps=yaw_rate, position_cov_m2=cov,
