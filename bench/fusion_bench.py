@@ -2,7 +2,7 @@
 side by side with FilterPy's ExtendedKalmanFilter running the same model in the same run.
 
 Both filters get identical state, covariance, Jacobians and noise from
-``navsvc.fusion.motion``; the timed work is what each filter does with them (FilterPy's
+``navsvc.fusion.road``; the timed work is what each filter does with them (FilterPy's
 ``predict``/``update``, our ``kalman.predict``/``correct`` with its gate), plus the
 shared model evaluation. Needs the ``bench`` extra (``pip install -e '.[bench]'``).
 
@@ -20,8 +20,10 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from report import median_us, print_table, write_json
 
-from navsvc.fusion import FusionConfig, SensorConfig, kalman
+from navsvc.fusion import PROFILES, FilterKind, FusionConfig, SensorConfig, kalman
+from navsvc.fusion.kalman import Linearised
 from navsvc.fusion.road import motion
+from navsvc.fusion.road.measurements import GpsPosition, GyroRate, SteeringRate
 from navsvc.fusion.road.motion import N_STATES
 
 DT_S = 0.01  # 100 Hz inertial rate
@@ -33,14 +35,14 @@ def _state() -> tuple[np.ndarray, np.ndarray]:
     return x, P
 
 
-def _inertial(config: FusionConfig) -> Callable[[np.ndarray], motion.Measurement] | None:
+def _inertial(config: FusionConfig) -> Callable[[np.ndarray], Linearised] | None:
     """The measurement each configuration takes at the inertial rate."""
-    s = config.sensors
-    if s == SensorConfig.STEERING_ODOMETER:
-        return lambda x: motion.steering_rate(x, 0.02, config.wheelbase_m, 0.005)
-    if s == SensorConfig.GPS_ONLY:
-        return None
-    return lambda x: motion.gyro_rate(x, -0.05, config.gyro_sigma_rps)
+    used = config.profile.measurements
+    if SteeringRate in used:
+        return SteeringRate(0.02, config.wheelbase_m, 0.005).model
+    if GyroRate in used:
+        return GyroRate(-0.05, config.gyro_sigma_rps).model
+    return None
 
 
 def _time(fn: Callable[[], None], steps: int) -> list[float]:
@@ -55,9 +57,9 @@ def _time(fn: Callable[[], None], steps: int) -> list[float]:
 
 def bench(sensors: SensorConfig, steps: int) -> dict[str, float]:
     config = FusionConfig(sensors=sensors)
-    accel = 0.3 if sensors.speed_from_accel else None
+    accel = 0.3 if config.profile.speed_from_accel else None
     x0, P0 = _state()
-    gps = lambda x: motion.gps_position(x, 11.0, 21.0, 3.0)  # noqa: E731
+    gps = GpsPosition(11.0, 21.0, 3.0).model
     inertial = _inertial(config)
 
     ours = {"x": x0.copy(), "P": P0.copy()}
@@ -67,7 +69,7 @@ def bench(sensors: SensorConfig, steps: int) -> dict[str, float]:
         ours["P"] = kalman.predict(ours["P"], F, q)
         ours["x"] = x
 
-    def our_update(model: Callable[[np.ndarray], motion.Measurement]) -> Callable[[], None]:
+    def our_update(model: Callable[[np.ndarray], Linearised]) -> Callable[[], None]:
         def run() -> None:
             z, h, H, R = model(ours["x"])
             ours["x"], ours["P"], _ = kalman.correct(ours["x"], ours["P"], z, h, H, R,
@@ -84,7 +86,7 @@ def bench(sensors: SensorConfig, steps: int) -> dict[str, float]:
         ekf.x = x
         ekf.predict()
 
-    def fp_update(model: Callable[[np.ndarray], motion.Measurement]) -> Callable[[], None]:
+    def fp_update(model: Callable[[np.ndarray], Linearised]) -> Callable[[], None]:
         def run() -> None:
             z, h, H, R = model(ekf.x)
             ekf.update(z, lambda _x: H, lambda _x: h, R=R)
@@ -117,7 +119,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20000)
     args = parser.parse_args()
     rows, data = [], {}
-    for sensors in SensorConfig:
+    for sensors in (s for s in SensorConfig if PROFILES[s].filter == FilterKind.ROAD):
         r = bench(sensors, args.steps)
         data[sensors.value] = r
         for step in ("predict", "inertial update", "GPS update"):

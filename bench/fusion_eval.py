@@ -18,17 +18,14 @@ from typing import Any
 from report import drives_parser, print_table, write_json
 from tqdm import tqdm
 
-from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
+from navsvc.fusion import PROFILES, FusionConfig, GpsMode, SensorConfig
 from navsvc.session import SessionConfig, VehicleSession
 from navsvc.sim.evaluate import evaluate
-from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+from navsvc.sim.simulate import DriveSpec, simulate_drive
 from navsvc.wire.positions import position_json
 from roadgraph import RoadGraph
 
 OUTAGE = (300.0, 60.0)
-
-
-EKF_ONLY = (SensorConfig.GPS_ONLY, SensorConfig.STRAPDOWN)
 
 
 def _one_drive(job: tuple[str, int, float, bool]) -> list[dict[str, Any]]:
@@ -39,10 +36,10 @@ def _one_drive(job: tuple[str, int, float, bool]) -> list[dict[str, Any]]:
     drive = simulate_drive(graph, spec)
     rows = []
     combos = [(s, m) for s, m in product(SensorConfig, GpsMode)
-              if s not in EKF_ONLY or m == GpsMode.EKF] if not tunnels else \
+              if m in PROFILES[s].gps_modes] if not tunnels else \
         [(SensorConfig.GYRO_ODOMETER, GpsMode.EKF)]
     for sensors, mode in combos:
-        kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
+        kinds = PROFILES[sensors].packets | {"truth"}
         session = VehicleSession(SessionConfig(FusionConfig(sensors=sensors, gps_mode=mode)),
                                  graph)
         result = session.add_records([r for r in drive if r["kind"] in kinds])

@@ -37,15 +37,13 @@ from navsvc.fusion import (
     Integration,
     Mechanisation,
     SensorConfig,
-    StrapdownEngine,
     StrapdownOptions,
 )
-from navsvc.fusion.road.motion import road_constraint
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
 from navsvc.triplog import LoggedSession, TripLog
 from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState
 from navsvc.wire.packets import parse
-from roadgraph import EdgeKey, LocalFrame, RoadGraph
+from roadgraph import LocalFrame, RoadGraph
 from roadgraph.geometry import wrap_angle_rad
 
 log = logging.getLogger(__name__)
@@ -84,14 +82,11 @@ class VehicleSession:
                  graph: RoadGraph | None = None) -> None:
         self.config = config
         self.graph = graph
-        frame = graph.frame if graph else None
-        self.engine: FusionEngine | StrapdownEngine
-        if config.fusion.sensors == SensorConfig.STRAPDOWN:
-            if config.map_feedback:
-                raise ConfigError("map feedback is not available with strapdown yet")
-            self.engine = StrapdownEngine(config.fusion, frame=frame, options=config.strapdown)
-        else:
-            self.engine = FusionEngine(config.fusion, frame=frame)
+        if config.map_feedback and not config.fusion.profile.map_feedback:
+            raise ConfigError(f"map feedback is not available with "
+                              f"{config.fusion.sensors.value} yet")
+        self.engine = FusionEngine(config.fusion, frame=graph.frame if graph else None,
+                                   ins=config.strapdown)
         self.matcher = OnlineMatcher(graph, config.matcher) if graph is not None else None
         self.last_position: MatchedPosition | None = None
         self._last_match_t: float | None = None
@@ -164,21 +159,17 @@ class VehicleSession:
     def _feed_back(self, p: MatchedPosition) -> None:
         """A confident match (on a road, outside any ambiguity region, close and heading
         along it) pulls the filter onto the road, at most once a second."""
-        c, e = self.config, p.estimate
-        if p.state != MatchState.ON_ROAD or p.edge is None or self.matcher is None or \
-                self.matcher.state.region is not None or p.distance_to_road_m is None or \
+        c, e, bearing = self.config, p.estimate, p.road_bearing_rad
+        if p.state != MatchState.ON_ROAD or bearing is None or p.in_ambiguity_region or \
+                p.distance_to_road_m is None or \
                 p.distance_to_road_m > c.feedback_max_distance_m or e.speed_mps < 1.0:
             return
         if self._last_feedback_t is not None and e.t - self._last_feedback_t < 1.0:
             return
-        assert self.graph is not None and isinstance(self.engine, FusionEngine)
-        bearing = self.graph.project(EdgeKey(p.edge.u, p.edge.v, p.edge.key), e.x_m,
-                                     e.y_m).bearing_rad
         if abs(wrap_angle_rad(e.heading_rad - bearing)) > math.radians(20.0):
             return
-        self.engine.correct(*road_constraint(self.engine.state.x, p.x_m, p.y_m, bearing,
-                                             c.feedback_sigma_across_m,
-                                             c.feedback_sigma_heading_rad))
+        self.engine.correct_to_road(p.x_m, p.y_m, bearing, c.feedback_sigma_across_m,
+                                    c.feedback_sigma_heading_rad)
         self._last_feedback_t = e.t
 
 

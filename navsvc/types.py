@@ -148,3 +148,5 @@ class MatchedPosition:
     candidates: tuple[tuple[EdgeRef, float], ...] = ()
     next_node: int | None = None
     distance_to_next_node_m: float | None = None
+    road_bearing_rad: float | None = None  # the matched road's direction at (x_m, y_m)
+    in_ambiguity_region: bool = False  # near an intersection, the road not yet committed

@@ -1,9 +1,13 @@
-"""Extended Kalman filter primitives over plain arrays (pure).
+"""Extended Kalman filter primitives over plain arrays (pure): the one update both filters use.
 
 FilterPy's letters: ``x`` state, ``P`` covariance, ``F`` transition Jacobian, ``Q`` process
 noise, ``z`` measurement, ``H`` measurement Jacobian, ``R`` measurement noise, ``y``
 innovation, ``S`` its covariance, ``K`` gain, ``nis`` normalised innovation squared.
 The update uses the Joseph form so that ``P`` stays symmetric positive semi-definite.
+
+A sensor enters a filter as a measurement model (pyins's way): a small object whose ``model``
+gives ``(z, h, H, R)`` at the filter's state, :class:`Linearised`; the road filter's models are
+in :mod:`navsvc.fusion.road.measurements`, the INS's in :mod:`navsvc.fusion.ins.measurements`.
 
 The filter runs these at 100-200 Hz per vehicle on 8x8 matrices, where NumPy's per-call
 overhead costs more than the arithmetic; the bodies are compiled with numba (cached on disk),
@@ -14,13 +18,32 @@ arithmetic too at this size.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
 from navsvc.fusion._jit import Array, jit
 
+State_contra = TypeVar("State_contra", contravariant=True)
+
+
+class Linearised(NamedTuple):
+    """A measurement at a state: ``z`` measured, ``h`` predicted, ``H = ∂h/∂x``, noise ``R``."""
+
+    z: Array
+    h: Array
+    H: Array
+    R: Array
+
+
+class Measurement(Protocol[State_contra]):
+    """A measurement model: adding a sensor is adding one."""
+
+    def model(self, state: State_contra) -> Linearised: ...
+
+
 # chi-square quantiles (probability 0.999) by degrees of freedom, for innovation gating
-CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467}
+CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467, 5: 20.515, 6: 22.458}
 
 @jit
 def matmul(A: Array, B: Array) -> Array:  # pragma: no cover - compiled
@@ -60,6 +83,21 @@ def inverse(S: Array) -> Array:  # pragma: no cover - compiled
 def gate_limit(dof: int, scale: float = 1.0) -> float:
     """The largest NIS that passes the chi-square gate (``scale`` widens it)."""
     return CHI2_999[dof] * scale
+
+
+def nis(P: Array, H: Array, R: Array, y: Array) -> float:
+    """The normalised innovation squared ``yᵀ (H P Hᵀ + R)⁻¹ y``."""
+    return float(_nis(_f64(y), matmul(matmul(_f64(H), P), _f64(H).T) + _f64(R)))
+
+
+@jit
+def _nis(y: Array, S: Array) -> float:  # pragma: no cover - compiled
+    S_inv = inverse(S)
+    total = 0.0
+    for i in range(len(y)):
+        for j in range(len(y)):
+            total += y[i] * S_inv[i, j] * y[j]
+    return total
 
 
 def _f64(a: Array) -> Array:

@@ -271,4 +271,5 @@ class OnlineMatcher:
         return MatchedPosition(
             estimate=e, state=state, x_m=proj.x_m, y_m=proj.y_m, edge=self._edge_ref(proj),
             distance_to_road_m=proj.distance_m, candidates=candidates,
-            next_node=proj.edge.v, distance_to_next_node_m=proj.remaining_m)
+            next_node=proj.edge.v, distance_to_next_node_m=proj.remaining_m,
+            road_bearing_rad=proj.bearing_rad, in_ambiguity_region=self.state.region is not None)

@@ -13,11 +13,15 @@ from hypothesis import strategies as st
 from navsvc.errors import TraceError
 from navsvc.fusion.ins import (
     EARTH_RATE_RPS,
+    BodyVelocity,
     GnssFix,
+    GnssPosition,
+    GnssVelocity,
     ImuNoise,
     Integration,
     Mechanisation,
     NavState,
+    Rest,
     dcm_to_euler,
     euler_to_dcm,
     ins_filter,
@@ -96,7 +100,7 @@ def test_bad_samples_are_refused_and_change_nothing(integration: Integration) ->
     with pytest.raises(ValueError, match="must increase"):
         ins.predict(0.0, dtheta, dvel)
     with pytest.raises(ValueError, match="standard deviations"):
-        ins.update_position(GnssFix(0.0, LAT, 0.0, 100.0, np.array([0.0, 1.0, 1.0])))
+        ins.update(GnssPosition(GnssFix(0.0, LAT, 0.0, 100.0, np.array([0.0, 1.0, 1.0]))))
     assert ins.state.lat_rad == before[0].lat_rad and np.array_equal(ins.P, before[1])
 
 
@@ -121,12 +125,12 @@ def test_covariance_stays_symmetric_positive_definite(steps: list, integration: 
         if fix is not None:
             north, east, sigma = fix
             rm, rn = radii_m(LAT)
-            ins.update_position(GnssFix(t, LAT + north / rm, east / (rn * math.cos(LAT)),
-                                        100.0, np.array([sigma, sigma, 2 * sigma])))
-            ins.update_velocity(np.array([north, east, 0.0]) / 10.0, (0, 1), 0.5)
-            ins.update_body_velocity(np.array([abs(east), 0.0, 0.0]), (0, 1, 2),
-                                     np.full(3, 0.2))
-            ins.update_rest(np.array(rate), 0.01, 0.1)
+            ins.update(GnssPosition(GnssFix(t, LAT + north / rm, east / (rn * math.cos(LAT)),
+                                            100.0, np.array([sigma, sigma, 2 * sigma]))))
+            ins.update(GnssVelocity(np.array([north, east, 0.0]) / 10.0, (0, 1), 0.5))
+            ins.update(BodyVelocity(np.array([abs(east), 0.0, 0.0]), (0, 1, 2),
+                                    np.full(3, 0.2)))
+            ins.update(Rest(np.array(rate), 0.01, 0.1))
         assert np.allclose(ins.P, ins.P.T)
         # positive definite, tested on the correlations: the direct filter holds position in
         # radians, which puts 16 orders of magnitude between P's diagonal entries

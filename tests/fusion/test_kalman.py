@@ -4,7 +4,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from navsvc.fusion import kalman
-from navsvc.fusion.road import motion
+from navsvc.fusion.road import measurements, motion
 
 
 def test_scalar_update_by_hand() -> None:
@@ -73,9 +73,10 @@ def test_predict_with_gyro_is_predict_then_the_gyro_update(
     x = np.array(x0)
     P = np.diag([4.0, 4.0, 0.01, 1.0, 0.01, 1e-4, 1e-3, 1e-2])
     noise = motion.ProcessNoise()
-    fused_x, fused_P = motion.predict_with_gyro(x, P, dt, 0.1, accel, noise, rate, 0.005)
+    fused_x, fused_P = measurements.predict_with_gyro(x, P, dt, 0.1, accel, noise, rate,
+                                                      0.005)
     x1, P1 = (x, P) if dt <= 1e-9 else motion.predict(x, P, dt, 0.1, accel, noise)
-    x2, P2, _ = kalman.correct(x1, P1, *motion.gyro_rate(x1, rate, 0.005))
+    x2, P2, _ = kalman.correct(x1, P1, *measurements.GyroRate(rate, 0.005).model(x1))
     x2[motion.HEADING] %= 2.0 * np.pi
     np.testing.assert_allclose(fused_x, x2, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(fused_P, P2, rtol=1e-12, atol=1e-15)

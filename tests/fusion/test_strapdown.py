@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError
-from navsvc.fusion.ins.strapdown import StrapdownEngine
+from navsvc.fusion.ins.strapdown import StrapdownFilter
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
@@ -89,8 +89,8 @@ def test_imu_mounted_sideways_is_turned_back(drive: list[dict], sample_graph: Ro
 def test_random_streams_never_break_the_strapdown_engine(stream: list[dict]) -> None:
     """A rejected packet changes nothing; the covariance stays symmetric and positive."""
     session = VehicleSession(config_from_options({"sensors": "strapdown"}))
-    engine = session.engine
-    assert isinstance(engine, StrapdownEngine)
+    engine = session.engine.filter
+    assert isinstance(engine, StrapdownFilter)
     for record in sorted(stream, key=lambda r: r["t"]):
         ins = engine.ins
         before = None if ins is None else (ins.state.copy(), ins.P.copy())

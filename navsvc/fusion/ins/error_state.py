@@ -22,13 +22,18 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from navsvc.fusion._jit import Array, jit
 from navsvc.fusion.ins.attitude import dcm_to_euler, skew
 from navsvc.fusion.ins.earth import EARTH_RATE_RPS, EarthModel, nav_rates, radii_m
+from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition
 from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise, sample_problem
+
+if TYPE_CHECKING:
+    from navsvc.fusion.ins.measurements import InsMeasurement
 
 N_ERR = 21
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
@@ -37,6 +42,7 @@ CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
 CHI2_6DOF_999 = 22.46
 GATE_FLOOR_M = 0.5
 GATED_BEFORE_SOFT = 3
+_CHI2 = {3: CHI2_3DOF_999, 6: CHI2_6DOF_999}
 
 
 class Integration(enum.Enum):
@@ -130,55 +136,36 @@ class InsFilter:
         if problem:
             raise ValueError(f"IMU sample at t={t} {problem}")
 
-    def update_position(self, fix: GnssFix) -> bool:
-        """A GNSS position at the state's time (the caller predicts to it first); False when
-        the chi-square gate refuses it."""
-        if not (np.all(np.isfinite(fix.sigma_ned_m)) and np.all(fix.sigma_ned_m > 0.0)):
-            raise ValueError(f"GNSS standard deviations must be finite and > 0, "
-                             f"got {fix.sigma_ned_m}")
-        y, h = self._position_residual(fix)
-        r = np.diag(fix.sigma_ned_m**2)
-        y = y - h @ self.dx
-        s_mat = h @ self.P @ h.T + r
-        # the gate allows for model error the fix's own sigma leaves out (an RTK fix says
-        # 1 cm; lever arm, timing and mechanisation are not that good)
-        nis = float(y @ np.linalg.solve(s_mat + GATE_FLOOR_M**2 * np.eye(3), y))
-        if nis > CHI2_3DOF_999:
+    def update(self, m: InsMeasurement) -> bool:
+        """A measurement at the state's time (the caller predicts to it first); False when
+        the chi-square gate refuses it.
+
+        A soft-gated measurement (GNSS position) refused ``GATED_BEFORE_SOFT`` times in a row
+        is taken with its noise inflated to the gate: the INS may be the one that is wrong,
+        and one outlier cannot drag the solution far. Its gate allows for model error the
+        fix's own sigma leaves out (an RTK fix says 1 cm; lever arm, timing and mechanisation
+        are not that good).
+        """
+        z, h, H, R = m.model(self)
+        y = z - h
+        chi2 = _CHI2[m.gate_dof]
+        s_mat = H @ self.P @ H.T + R
+        if not m.soft_gate:
+            if float(y @ np.linalg.solve(s_mat, y)) > chi2:
+                return False
+            self._apply(H, y, R, s_mat)
+            return True
+        nis = float(y @ np.linalg.solve(s_mat + GATE_FLOOR_M**2 * np.eye(len(y)), y))
+        if nis > chi2:
             self.gated += 1
             if self.gated < GATED_BEFORE_SOFT:
                 return False
-            # refused often in a row: the INS may be the one that is wrong; take the fix with
-            # its noise inflated to the gate, so one outlier cannot drag the solution far
-            r = r * (nis / CHI2_3DOF_999)
-            s_mat = h @ self.P @ h.T + r
+            R = R * (nis / chi2)
+            s_mat = H @ self.P @ H.T + R
         else:
             self.gated = 0
-        self._apply(h, y, r, s_mat)
+        self._apply(H, y, R, s_mat)
         return True
-
-    def update_body_velocity(self, z_b: Array, rows: tuple[int, ...], sigma_mps: Array) -> bool:
-        """Measured components (``rows`` of x fwd, y right, z down) of the velocity in the
-        body frame: wheel speed (x), the non-holonomic constraint (y = z = 0), or a stop
-        (all three 0). False when the gate refuses it."""
-        idx = list(rows)
-        y, h = self._body_velocity_residual(z_b)
-        r = np.diag(np.asarray(sigma_mps, dtype=np.float64)[idx] ** 2)
-        return self._gated_update(y[idx], h[idx], r, CHI2_3DOF_999)
-
-    def update_velocity(self, v_ned: Array, rows: tuple[int, ...], sigma_mps: float) -> bool:
-        """GNSS velocity (the ``rows`` of north, east, down that were measured)."""
-        idx = list(rows)
-        y, h = self._velocity_residual(v_ned)
-        return self._gated_update(y[idx], h[idx], np.eye(len(idx)) * sigma_mps**2,
-                                  CHI2_3DOF_999)
-
-    def update_rest(self, gyro_rps: Array, gyro_sigma_rps: float,
-                    velocity_sigma_mps: float) -> bool:
-        """The vehicle stands still: zero velocity, and the gyro reads its bias plus the
-        earth's rate (zero-velocity and zero-angular-rate updates). False when gated."""
-        y, h = self._rest_residual(gyro_rps)
-        r = np.diag([velocity_sigma_mps**2] * 3 + [gyro_sigma_rps**2] * 3)
-        return self._gated_update(y, h, r, CHI2_6DOF_999)
 
     def position_cov_ned_m2(self) -> Array:
         """Covariance of the position (north, east, down; m²)."""
@@ -188,7 +175,7 @@ class InsFilter:
         return float(math.sqrt(self.P[8, 8]))
 
     # measurement models: (predicted - measured, its Jacobian in the filter's state) --------
-    def _position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
+    def position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
         s = self.state
         rm, rn = radii_m(s.lat_rad)
         lever_n = s.c_bn @ self.lever_arm_b_m
@@ -200,7 +187,7 @@ class InsFilter:
         h[:, ATT] = -skew(lever_n)
         return y, h
 
-    def _body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
+    def body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
         s = self.state
         c_nb = s.c_bn.T
         h = np.zeros((3, N_ERR))
@@ -208,27 +195,18 @@ class InsFilter:
         h[:, ATT] = c_nb @ skew(s.v_ned)
         return c_nb @ s.v_ned - z_b, h
 
-    def _velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
+    def velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
         h = np.zeros((3, N_ERR))
         h[:, VEL] = np.eye(3)
         return self.state.v_ned - v_ned, h
 
-    def _rest_residual(self, gyro_rps: Array) -> tuple[Array, Array]:
+    def rest_residual(self, gyro_rps: Array) -> tuple[Array, Array]:
         s = self.state
         h = np.zeros((6, N_ERR))
         h[0:3, VEL] = np.eye(3)
         h[3:6, BG] = np.eye(3)  # the residual rate is the bias error (true - estimate)
         return np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - earth_rate_body(
             s, self._rotating)]), h
-
-    def _gated_update(self, y: Array, h: Array, r: Array, chi2: float) -> bool:
-        """The update of one measurement unless the chi-square gate refuses it."""
-        y = y - h @ self.dx
-        s_mat = h @ self.P @ h.T + r
-        if float(y @ np.linalg.solve(s_mat, y)) > chi2:
-            return False
-        self._apply(h, y, r, s_mat)
-        return True
 
     def _apply(self, h: Array, y: Array, r: Array, s_mat: Array) -> None:
         """The Kalman update (Joseph form), then the correction of the estimate."""
@@ -331,13 +309,13 @@ def replay(ins: InsFilter, imu: Array, fixes: list[GnssFix],
             if frac > 1e-6:
                 ins.predict(fix.t, dtheta * frac, dvel * frac)
                 dtheta, dvel = dtheta * (1 - frac), dvel * (1 - frac)
-            ins.update_position(fix)
+            ins.update(GnssPosition(fix))
             k += 1
         if t - ins.state.t > 1e-9:
             ins.predict(t, dtheta, dvel)
         if nhc_sigma_mps is not None and t - last_nhc >= 0.1 and \
                 math.hypot(ins.state.v_ned[0], ins.state.v_ned[1]) > 2.0:
-            ins.update_body_velocity(np.zeros(3), (1, 2), np.full(3, nhc_sigma_mps))
+            ins.update(BodyVelocity(np.zeros(3), (1, 2), np.full(3, nhc_sigma_mps)))
             last_nhc = t
         s = ins.output()
         out.append((s.t, s.lat_rad, s.lon_rad, s.h_m, *dcm_to_euler(s.c_bn)))

@@ -1,9 +1,10 @@
-"""The strapdown INS as a session's fusion engine: the ``strapdown`` sensor configuration.
+"""The strapdown INS as a session's filter: the ``strapdown`` sensor configuration (pure).
 
 Vehicles with a full 6-axis IMU send ``imu`` packets with ``gyro_dps`` and ``accel_mps2`` (body
-x forward, y left, z up on the wire) and GPS fixes; this engine turns them into the same
-:class:`FusedEstimate` stream as :class:`navsvc.fusion.engine.FusionEngine`, so sessions, the
-matcher and the API use it unchanged.
+x forward, y left, z up on the wire) and GPS fixes; this filter turns them into the same
+:class:`FusedEstimate` stream as the road filter, behind the same
+:class:`navsvc.fusion.engine.FusionEngine` (and its reorder window), so sessions, the matcher
+and the API use it unchanged.
 
 Wheel speed (``odometer`` packets), the non-holonomic constraint and, while the vehicle stands
 still, zero velocity and zero angular rate are extra measurements: they are what holds a road
@@ -17,20 +18,23 @@ over each sample interval (rectangular increments); the IMU mounting rotation is
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from navsvc.errors import ConfigError, PacketError, RejectReason
+from navsvc.fusion import odometer
 from navsvc.fusion._jit import Array
-from navsvc.fusion.engine import FusionConfig, gps_problem, gps_sigma_m
+from navsvc.fusion.config import FusionConfig
+from navsvc.fusion.gnss import gps_problem, gps_sigma_m
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
+from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition, GnssVelocity, Rest
 from navsvc.fusion.ins.mechanisation import MAX_ACCEL_MPS2, MAX_RATE_RPS, Mechanisation, NavState
 from navsvc.fusion.ins.total_state import ins_filter
-from navsvc.fusion.road.motion import SensorConfig
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
 
@@ -61,46 +65,73 @@ class StrapdownOptions:
         5.0, 0.5, math.radians(2.0), math.radians(10.0),  # gyro bias rad/s, accel bias m/s²,
         math.radians(0.5), 0.1, 3e-3)  # scale factors (gyro and accelerometer)
 
-
-DEFAULT_CONFIG = FusionConfig(sensors=SensorConfig.STRAPDOWN)
-DEFAULT_OPTIONS = StrapdownOptions()
-
-
-class StrapdownEngine:
-    """One vehicle's strapdown INS with GPS, behind the FusionEngine interface."""
-
-    def __init__(self, config: FusionConfig = DEFAULT_CONFIG,
-                 frame: LocalFrame | None = None,
-                 options: StrapdownOptions = DEFAULT_OPTIONS) -> None:
-        if options.align_min_speed_mps <= 0.0:
+    def __post_init__(self) -> None:
+        if self.align_min_speed_mps <= 0.0:
             raise ConfigError("align_min_speed_mps must be > 0")
+
+
+@dataclass
+class StrapdownState:
+    """Everything the strapdown filter remembers (plain data)."""
+
+    ins: InsFilter | None = None  # None until aligned
+    still_f: deque[Array] = field(default_factory=deque)  # specific force while standing
+    rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
+    t: float | None = None
+    last_output_t: float | None = None
+    standing: bool = True
+    gps: GpsUsage | None = None
+    height_m: float = 0.0
+    last_nhc_t: float | None = None
+    odo_window: odometer.Window | None = None
+    odo_speed: float | None = None  # latest raw wheel speed
+    odo_scale: float = 1.0
+
+
+class StrapdownFilter:
+    """One vehicle's strapdown INS with GPS: ``apply`` packets in time order."""
+
+    def __init__(self, config: FusionConfig, frame: LocalFrame | None = None,
+                 options: StrapdownOptions = StrapdownOptions()) -> None:
         self.config = config
         self.frame = frame
         self.options = options
-        self.ins: InsFilter | None = None
         self._mount = euler_to_dcm(*np.radians(options.mounting_rpy_deg)) @ FLU_TO_FRD
-        self._still_f: deque[Array] = deque(maxlen=options.level_window)
-        self.nav_rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
-        self._t: float | None = None
-        self._last_output_t: float | None = None
-        self._standing = True
-        self._gps: GpsUsage | None = None
-        self._height_m = 0.0
-        self._last_nhc_t: float | None = None
-        self._odo_window: tuple[float, float] | None = None  # (t, cumulative distance)
-        self._odo_speed: float | None = None  # latest raw wheel speed
-        self._odo_scale = 1.0
+        self.state = StrapdownState(still_f=deque(maxlen=options.level_window))
 
     @property
     def t(self) -> float | None:
         """Time of the latest packet applied."""
-        return self._t
+        return self.state.t
 
-    def add(self, packet: Packet) -> list[FusedEstimate]:
-        """Apply one packet in time order; return the estimates it produced."""
-        if self._t is not None and packet.t < self._t:
-            raise PacketError(RejectReason.TIME_BACKWARDS,
-                              f"t={packet.t} is before the latest packet t={self._t}")
+    @property
+    def ins(self) -> InsFilter | None:
+        """The INS, once aligned."""
+        return self.state.ins
+
+    def snapshot(self) -> StrapdownState:
+        """A copy that later packets cannot reach. The INS replaces its arrays and navigation
+        states rather than writing into them, so a shallow copy of it is enough; the
+        levelling samples are a deque, copied."""
+        snap = copy.copy(self.state)
+        snap.ins = copy.copy(self.state.ins)
+        snap.still_f = copy.copy(self.state.still_f)
+        return snap
+
+    def restore(self, snapshot: StrapdownState) -> None:
+        """Go back to a snapshot (which stays as it is)."""
+        self.state = snapshot
+        self.state = self.snapshot()
+
+    def estimate(self) -> FusedEstimate | None:
+        return None if self.state.ins is None else self._estimate()
+
+    def correct(self, m: object) -> bool:
+        """External measurements (map feedback) are not taken yet."""
+        return False
+
+    def apply(self, packet: Packet) -> list[FusedEstimate]:
+        """One packet, not older than the state; the estimates it produced."""
         if isinstance(packet, ImuSample):
             return self._imu(packet)
         if isinstance(packet, GpsFix):
@@ -111,11 +142,9 @@ class StrapdownEngine:
         raise PacketError(RejectReason.NOT_CONFIGURED,
                           f"{type(packet).__name__} is not used by the strapdown configuration")
 
-    def estimate(self) -> FusedEstimate | None:
-        return None if self.ins is None else self._estimate()
-
     # --- packets -------------------------------------------------------------------------
     def _imu(self, p: ImuSample) -> list[FusedEstimate]:
+        s = self.state
         if p.gyro_rps is None or p.accel_mps2 is None:
             raise PacketError(RejectReason.MISSING_FIELD,
                               "strapdown needs the full 6-axis imu: gyro_dps and accel_mps2")
@@ -127,23 +156,24 @@ class StrapdownEngine:
                               f"deg/s, |accel| <= {MAX_ACCEL_MPS2:g} m/s^2)")
         if self._predict_to(p.t):
             self._constrain(p.t)
-        elif self.ins is None and self._standing:
-            self._still_f.append(accel)
-        self.nav_rates, self._t = (gyro, accel), p.t
-        if self.ins is not None and self._last_output_t is not None and \
-                p.t - self._last_output_t >= self.config.output_interval_s:
-            self._last_output_t = p.t
+        elif s.ins is None and s.standing:
+            s.still_f.append(accel)
+        s.rates, s.t = (gyro, accel), p.t
+        if s.ins is not None and s.last_output_t is not None and \
+                p.t - s.last_output_t >= self.config.output_interval_s:
+            s.last_output_t = p.t
             return [self._estimate()]
         return []
 
     def _predict_to(self, t: float) -> bool:
         """Carry the INS to ``t`` on the last IMU rates (held); False when it is not running
         yet or already there. Runs before any other change a packet makes, as it may refuse."""
-        if self.ins is None or self.nav_rates is None or t <= self.ins.state.t:
+        ins, rates = self.state.ins, self.state.rates
+        if ins is None or rates is None or t <= ins.state.t:
             return False
-        dt = t - self.ins.state.t
+        dt = t - ins.state.t
         try:
-            self.ins.predict(t, self.nav_rates[0] * dt, self.nav_rates[1] * dt)
+            ins.predict(t, rates[0] * dt, rates[1] * dt)
         except ValueError as exc:  # saturated or non-finite sample: hold, report
             raise PacketError(RejectReason.OUT_OF_RANGE, str(exc)) from None
         return True
@@ -151,52 +181,43 @@ class StrapdownEngine:
     def _constrain(self, t: float) -> None:
         """The non-holonomic constraint: a road vehicle does not slide sideways or leave the
         road surface (body y and z velocity zero), applied at ``nhc_rate_hz``."""
-        o = self.options
-        assert self.ins is not None and self.nav_rates is not None
-        if not o.nhc or (self._last_nhc_t is not None and
-                         t - self._last_nhc_t < 1.0 / o.nhc_rate_hz):
+        o, s = self.options, self.state
+        assert s.ins is not None and s.rates is not None
+        if not o.nhc or (s.last_nhc_t is not None and t - s.last_nhc_t < 1.0 / o.nhc_rate_hz):
             return
-        self._last_nhc_t = t
-        v = self.ins.state.v_ned
-        if self._standing and math.hypot(v[0], v[1]) < o.still_speed_mps * 2.0:
+        s.last_nhc_t = t
+        v = s.ins.state.v_ned
+        if s.standing and math.hypot(v[0], v[1]) < o.still_speed_mps * 2.0:
             # standing (GPS says so and the INS agrees): zero velocity and rate calibrate
             # the gyro while heading cannot be seen
-            self.ins.update_rest(self.nav_rates[0], o.rest_gyro_sigma_rps, o.nhc_sigma_mps)
+            s.ins.update(Rest(s.rates[0], o.rest_gyro_sigma_rps, o.nhc_sigma_mps))
         else:
-            self.ins.update_body_velocity(np.zeros(3), (1, 2), np.full(3, o.nhc_sigma_mps))
+            s.ins.update(BodyVelocity(np.zeros(3), (1, 2), np.full(3, o.nhc_sigma_mps)))
 
     def _odometer(self, p: OdometerSample) -> None:
         """Wheel speed along the body x axis (a stop: the whole velocity is zero)."""
+        s, cfg = self.state, self.config
         self._predict_to(p.t)
-        speed = p.speed_mps
-        distance = p.distance_m if p.distance_m is not None else (
-            None if p.ticks is None else p.ticks / self.config.ticks_per_m)
-        if speed is None and distance is not None:
-            if self._odo_window is None or p.t - self._odo_window[0] <= 0.0:
-                self._odo_window = (p.t, distance)
-                return
-            if p.t - self._odo_window[0] < self.config.odometer_window_s:
-                return
-            speed = (distance - self._odo_window[1]) / (p.t - self._odo_window[0])
-            self._odo_window = (p.t, distance)
-        self._t = p.t
+        s.t = p.t
+        s.odo_window, speed = odometer.speed_mps(p, s.odo_window, cfg.ticks_per_m,
+                                                 cfg.odometer_window_s)
         if speed is None:
             return
-        self._odo_speed = speed
-        speed *= self._odo_scale
-        if self.ins is None:
+        s.odo_speed = speed
+        speed *= s.odo_scale
+        if s.ins is None:
             return
-        sigma = np.full(3, self.config.odometer_sigma_mps)
+        sigma = np.full(3, cfg.odometer_sigma_mps)
         if speed < 0.05:
-            self.ins.update_body_velocity(np.zeros(3), (0, 1, 2), sigma)
+            s.ins.update(BodyVelocity(np.zeros(3), (0, 1, 2), sigma))
         else:
-            self.ins.update_body_velocity(np.array([speed, 0.0, 0.0]), (0,), sigma)
+            s.ins.update(BodyVelocity(np.array([speed, 0.0, 0.0]), (0,), sigma))
 
     def _gps_velocity(self, fix: GpsFix) -> None:
         """Speed and course as a horizontal velocity: standing (speed under
         ``still_speed_mps``) or moving fast enough for the course to mean something."""
-        assert self.ins is not None
-        cfg = self.config
+        ins, cfg = self.state.ins, self.config
+        assert ins is not None
         if fix.speed_mps is None:
             return
         if fix.speed_mps < self.options.still_speed_mps:
@@ -206,81 +227,87 @@ class StrapdownEngine:
                                           0.0])
         else:
             return
-        self.ins.update_velocity(v, (0, 1), cfg.gps_velocity_sigma_mps)
+        ins.update(GnssVelocity(v, (0, 1), cfg.gps_velocity_sigma_mps))
 
     def _calibrate_odometer(self, fix: GpsFix) -> None:
         """Wheel-speed scale from GPS speed at good speeds (a running average): tyre size and
         wear make it a few percent off, which the filter would otherwise read as motion."""
-        if fix.speed_mps is None or self._odo_speed is None or fix.speed_mps < 5.0 or \
-                self._odo_speed < 5.0:
+        s = self.state
+        if fix.speed_mps is None or s.odo_speed is None or fix.speed_mps < 5.0 or \
+                s.odo_speed < 5.0:
             return
-        ratio = fix.speed_mps / self._odo_speed
+        ratio = fix.speed_mps / s.odo_speed
         if 0.8 < ratio < 1.2:
-            self._odo_scale += ODO_SCALE_GAIN * (ratio - self._odo_scale)
+            s.odo_scale += ODO_SCALE_GAIN * (ratio - s.odo_scale)
+
+    def _sigma_m(self, fix: GpsFix) -> float:
+        return gps_sigma_m(fix, self.config.gps_uere_m, self.config.gps_default_sigma_m)
 
     def _gps_fix(self, fix: GpsFix) -> list[FusedEstimate]:
+        s = self.state
         self._predict_to(fix.t)
-        self._t = fix.t
-        bad = gps_problem(fix, self.config)
+        s.t = fix.t
+        bad = gps_problem(fix, self.config.min_sats, self.config.max_hdop)
         if bad is not None:
-            self._gps = GpsUsage(False, 0.0, bad)
-            return [self._estimate()] if self.ins is not None else []
+            s.gps = GpsUsage(False, 0.0, bad)
+            return [self._estimate()] if s.ins is not None else []
         if self.frame is None:
             self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
         if fix.speed_mps is not None:
-            self._standing = fix.speed_mps < self.options.still_speed_mps
-        if self.ins is None:
+            s.standing = fix.speed_mps < self.options.still_speed_mps
+        if s.ins is None:
             self._try_align(fix)
-            return [self._estimate()] if self.ins is not None else []
+            return [self._estimate()] if s.ins is not None else []
         self._calibrate_odometer(fix)
-        sigma = gps_sigma_m(fix, self.config)
+        sigma = self._sigma_m(fix)
         if fix.alt_m is not None:
-            self._height_m = fix.alt_m
+            s.height_m = fix.alt_m
         # without a GPS height, the last one known (loosely) keeps the vertical channel bounded
         h_sigma = 2.0 * sigma if fix.alt_m is not None else NO_HEIGHT_SIGMA_M
-        used = self.ins.update_position(GnssFix(
-            fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg), self._height_m,
-            np.array([sigma, sigma, h_sigma])))
+        used = s.ins.update(GnssPosition(GnssFix(
+            fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg), s.height_m,
+            np.array([sigma, sigma, h_sigma]))))
         self._gps_velocity(fix)
-        self._gps = GpsUsage(True, 1.0, "accepted") if used else \
+        s.gps = GpsUsage(True, 1.0, "accepted") if used else \
             GpsUsage(False, 0.0, "gated: innovation too large")
-        self._last_output_t = fix.t
+        s.last_output_t = fix.t
         return [self._estimate()]
 
     def _try_align(self, fix: GpsFix) -> None:
         """Start the INS once the GPS course gives a heading."""
-        o = self.options
+        o, s = self.options, self.state
         if fix.speed_mps is None or fix.heading_rad is None or \
                 fix.speed_mps < o.align_min_speed_mps:
-            self._gps = GpsUsage(False, 0.0, "aligning: waiting to move for a heading")
+            s.gps = GpsUsage(False, 0.0, "aligning: waiting to move for a heading")
             return
-        roll, pitch = level_from_accel(np.mean(self._still_f, axis=0)) if self._still_f \
+        roll, pitch = level_from_accel(np.mean(s.still_f, axis=0)) if s.still_f \
             else (0.0, 0.0)
         yaw = fix.heading_rad
-        sigma = gps_sigma_m(fix, self.config)
-        s = o.initial_sigmas
-        p0 = np.diag(np.array([max(s[0], sigma)] * 2 + [2.0 * max(s[0], sigma)] + [s[1]] * 3
-                              + [s[2], s[2], s[3]] + [s[4]] * 3 + [s[5]] * 3 + [s[6]] * 6)
-                     ** 2)
-        self._height_m = fix.alt_m if fix.alt_m is not None else 0.0
+        sigma = self._sigma_m(fix)
+        sd = o.initial_sigmas
+        p0 = np.diag(np.array([max(sd[0], sigma)] * 2 + [2.0 * max(sd[0], sigma)]
+                              + [sd[1]] * 3 + [sd[2], sd[2], sd[3]] + [sd[4]] * 3
+                              + [sd[5]] * 3 + [sd[6]] * 6) ** 2)
+        s.height_m = fix.alt_m if fix.alt_m is not None else 0.0
         state = NavState(fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg),
-                         self._height_m,
+                         s.height_m,
                          fix.speed_mps * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
                          euler_to_dcm(roll, pitch, yaw))
-        self.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
-                             o.mechanisation)
-        self._last_output_t = fix.t
-        self._gps = GpsUsage(True, 1.0, "aligned: level from the IMU, heading from GPS")
+        s.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
+                           o.mechanisation)
+        s.last_output_t = fix.t
+        s.gps = GpsUsage(True, 1.0, "aligned: level from the IMU, heading from GPS")
 
     def _estimate(self) -> FusedEstimate:
-        assert self.ins is not None and self.frame is not None
-        s = self.ins.output()
-        x, y = self.frame.to_local(math.degrees(s.lon_rad), math.degrees(s.lat_rad))
-        p = self.ins.position_cov_ned_m2()
+        ins, rates = self.state.ins, self.state.rates
+        assert ins is not None and self.frame is not None
+        n = ins.output()
+        x, y = self.frame.to_local(math.degrees(n.lon_rad), math.degrees(n.lat_rad))
+        p = ins.position_cov_ned_m2()
         cov = np.array([[p[1, 1], p[1, 0]], [p[0, 1], p[0, 0]]])  # (east, north) = (x, y)
-        yaw_rate = 0.0 if self.nav_rates is None else float(
-            (s.c_bn @ (self.nav_rates[0] - s.gyro_bias_rps))[2])
-        return FusedEstimate(t=s.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(s.c_bn)[2],
-                             speed_mps=float(math.hypot(s.v_ned[0], s.v_ned[1])),
+        yaw_rate = 0.0 if rates is None else float(
+            (n.c_bn @ (rates[0] - n.gyro_bias_rps))[2])
+        return FusedEstimate(t=n.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(n.c_bn)[2],
+                             speed_mps=float(math.hypot(n.v_ned[0], n.v_ned[1])),
                              yaw_rate_rps=yaw_rate, position_cov_m2=cov,
-                             heading_sigma_rad=self.ins.heading_sigma_rad(), gps=self._gps)
+                             heading_sigma_rad=ins.heading_sigma_rad(), gps=self.state.gps)

@@ -182,7 +182,7 @@ class DirectInsFilter(InsFilter):
             h[:, i] = (residual(x + step) - residual(x - step)) / (2.0 * STEP[i])
         return y, h
 
-    def _position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
+    def position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
         # in metres north, east, down at the fix, so that it compares with the fix's sigmas
         m = _metres_per_unit(NavState(fix.t, fix.lat_rad, fix.lon_rad, fix.h_m,
                                       np.zeros(3), np.eye(3)))
@@ -199,13 +199,13 @@ class DirectInsFilter(InsFilter):
 
         return self._numeric(antenna_minus_fix)
 
-    def _body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
+    def body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
         return self._numeric(lambda x: euler_to_dcm(x[6], x[7], x[8]).T @ x[3:6] - z_b)
 
-    def _velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
+    def velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
         return self._numeric(lambda x: x[3:6] - v_ned)
 
-    def _rest_residual(self, gyro_rps: Array) -> tuple[Array, Array]:
+    def rest_residual(self, gyro_rps: Array) -> tuple[Array, Array]:
         def still(x: Array) -> Array:
             rate = earth_rate_body(nav_state(self.state.t, x), self._rotating)
             return np.concatenate([x[3:6], gyro_rps - x[9:12] - rate])

@@ -1,0 +1,108 @@
+"""Measurement models of the strapdown INS (pure), one small object per aiding sensor.
+
+Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md), loosely coupled: GNSS position (with the
+antenna's lever arm) and velocity; body-frame velocity for wheel speed, the non-holonomic
+constraint and stops; the zero-rate update at rest. Each ``model(ins)`` gives
+:class:`~navsvc.fusion.kalman.Linearised` ``(z, h, H, R)`` in the filter's own state: ``z`` is
+the residual (predicted less measured) and ``h = H dx`` its prediction from the estimated
+error ``dx``, so the update is the one Kalman update of :mod:`navsvc.fusion.kalman`. The
+residual and ``H`` come from the filter (:class:`.error_state.InsFilter` analytic,
+:class:`.total_state.DirectInsFilter` by central differences); a test checks the analytic
+``H`` against central differences of the residual.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar, Protocol
+
+import numpy as np
+
+from navsvc.fusion._jit import Array
+from navsvc.fusion.kalman import Linearised
+
+if TYPE_CHECKING:
+    from navsvc.fusion.ins.error_state import GnssFix, InsFilter
+
+
+class InsMeasurement(Protocol):
+    """A measurement the INS takes: its model and how it is gated."""
+
+    gate_dof: ClassVar[int]  # chi-square gate (99.9 %) of this many degrees of freedom
+    soft_gate: ClassVar[bool]  # refused often in a row, taken with its noise inflated
+
+    def model(self, ins: InsFilter) -> Linearised: ...
+
+
+def _linearised(ins: InsFilter, y: Array, H: Array, R: Array) -> Linearised:
+    return Linearised(y, H @ ins.dx, H, R)
+
+
+@dataclass(frozen=True)
+class GnssPosition:
+    """A GNSS position at the state's time, at the antenna (lever arm in the body frame)."""
+
+    fix: GnssFix
+    gate_dof: ClassVar[int] = 3
+    soft_gate: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        sigma = self.fix.sigma_ned_m
+        if not (np.all(np.isfinite(sigma)) and np.all(sigma > 0.0)):
+            raise ValueError(f"GNSS standard deviations must be finite and > 0, got {sigma}")
+
+    def model(self, ins: InsFilter) -> Linearised:
+        y, H = ins.position_residual(self.fix)
+        return _linearised(ins, y, H, np.diag(self.fix.sigma_ned_m**2))
+
+
+@dataclass(frozen=True)
+class GnssVelocity:
+    """GNSS velocity: the ``rows`` of north, east, down that were measured."""
+
+    v_ned_mps: Array
+    rows: tuple[int, ...]
+    sigma_mps: float
+    gate_dof: ClassVar[int] = 3
+    soft_gate: ClassVar[bool] = False
+
+    def model(self, ins: InsFilter) -> Linearised:
+        idx = list(self.rows)
+        y, H = ins.velocity_residual(self.v_ned_mps)
+        return _linearised(ins, y[idx], H[idx], np.eye(len(idx)) * self.sigma_mps**2)
+
+
+@dataclass(frozen=True)
+class BodyVelocity:
+    """Measured components (``rows`` of x forward, y right, z down) of the velocity in the
+    body frame: wheel speed (x), the non-holonomic constraint (y = z = 0), a stop (all 0)."""
+
+    v_body_mps: Array
+    rows: tuple[int, ...]
+    sigma_mps: Array  # per axis
+    gate_dof: ClassVar[int] = 3
+    soft_gate: ClassVar[bool] = False
+
+    def model(self, ins: InsFilter) -> Linearised:
+        idx = list(self.rows)
+        y, H = ins.body_velocity_residual(self.v_body_mps)
+        R = np.diag(np.asarray(self.sigma_mps, dtype=np.float64)[idx] ** 2)
+        return _linearised(ins, y[idx], H[idx], R)
+
+
+@dataclass(frozen=True)
+class Rest:
+    """The vehicle stands still: zero velocity, and the gyro reads its bias plus the earth's
+    rate (zero-velocity and zero-angular-rate updates)."""
+
+    gyro_rps: Array
+    gyro_sigma_rps: float
+    velocity_sigma_mps: float
+    gate_dof: ClassVar[int] = 6
+    soft_gate: ClassVar[bool] = False
+
+    def model(self, ins: InsFilter) -> Linearised:
+        y, H = ins.rest_residual(self.gyro_rps)
+        R = np.diag([self.velocity_sigma_mps**2] * 3 + [self.gyro_sigma_rps**2] * 3)
+        return _linearised(ins, y, H, R)
+

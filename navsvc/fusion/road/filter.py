@@ -1,0 +1,413 @@
+"""The road-vehicle filter: an 8-state multi-rate EKF over dead reckoning and GPS (pure).
+
+Seed: Mayhew 1999, chapter 5. The filter predicts at every inertial, odometer or steering
+sample with the real time step (:mod:`.motion`), and corrects with each sensor's measurement
+model (:mod:`.measurements`), as the configuration's profile lists them
+(:mod:`navsvc.fusion.profiles`). GPS arrives asynchronously (about 1 Hz) and is fused by one
+of three modes: ``ekf`` (Kalman update with chi-square gating), ``rules`` (thesis 5.4,
+:mod:`.rules`) or ``fuzzy`` (thesis 5.5, :mod:`.fuzzy`). While the odometer reads no motion
+for 20+ samples the vehicle is stationary: zero-velocity updates hold it and calibrate the
+gyro bias (thesis: gyro centre).
+
+The filter takes packets in time order (``apply``); the engine's reorder window
+(:mod:`navsvc.fusion.reorder`) rolls it back with ``snapshot`` and ``restore``. Its state is
+:class:`RoadState` (plain data).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from navsvc.fusion import kalman, odometer
+from navsvc.fusion._jit import Array
+from navsvc.fusion.config import FusionConfig
+from navsvc.fusion.gnss import gps_problem, gps_sigma_m
+from navsvc.fusion.kalman import Linearised, Measurement
+from navsvc.fusion.profiles import GpsMode
+from navsvc.fusion.road import motion
+from navsvc.fusion.road.fuzzy import fuzzy_weights
+from navsvc.fusion.road.measurements import (
+    CourseAndSpeed,
+    GpsPosition,
+    GpsVelocity,
+    LateralAccel,
+    OdometerSpeed,
+    SteeringRate,
+    ZeroMotion,
+    predict_with_gyro,
+)
+from navsvc.fusion.road.motion import (
+    ACCEL_BIAS,
+    GYRO_BIAS,
+    HEADING,
+    HEADING_RATE,
+    N_STATES,
+    ODO_SCALE,
+    SPEED,
+    X_M,
+    Y_M,
+)
+from navsvc.fusion.road.rules import GpsAction, GpsDecision, decide_rules
+from navsvc.types import (
+    FusedEstimate,
+    GpsFix,
+    GpsUsage,
+    ImuSample,
+    OdometerSample,
+    Packet,
+    SteeringSample,
+)
+from navsvc.types import (
+    GpsVelocity as GpsVelocityPacket,
+)
+from roadgraph.geometry import LocalFrame, bearing_rad
+
+
+@dataclass
+class RoadState:
+    """Everything the road filter remembers (plain data)."""
+
+    x: Array = field(default_factory=lambda: np.zeros(N_STATES))
+    P: Array = field(default_factory=lambda: np.eye(N_STATES))
+    t: float | None = None  # time of x
+    initialized: bool = False
+    first_fix: tuple[float, float, float] | None = None  # (t, x, y) awaiting a heading
+    last_odo: odometer.Window | None = None  # odometer speed window start
+    last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
+    still_samples: int = 0
+    accel_fwd_mps2: float | None = None  # last forward acceleration (configs 3 and 4)
+    gated_fixes: int = 0  # consecutive GPS fixes not fused
+    gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
+    last_gps_t: float | None = None
+    last_output_t: float | None = None
+    gps: GpsUsage | None = None
+
+
+class RoadFilter:
+    """The 8-state EKF of one road vehicle: ``apply`` packets in time order."""
+
+    def __init__(self, config: FusionConfig, frame: LocalFrame | None = None) -> None:
+        self.config = config
+        self.profile = config.profile
+        self.frame = frame
+        self.state = RoadState()
+        tau = self.profile.turn_rate_tau_s
+        self.process = config.process if config.process.turn_rate_tau_s is not None or \
+            tau is None else replace(config.process, turn_rate_tau_s=tau)
+
+    @property
+    def t(self) -> float | None:
+        """Time of the filter's state (the latest packet applied)."""
+        return self.state.t
+
+    def snapshot(self) -> RoadState:
+        """A copy that later packets cannot reach (the only mutable fields are the two
+        arrays; ``gps`` is frozen)."""
+        snap = object.__new__(RoadState)  # copy.copy took a third of the time, for the same
+        snap.__dict__.update(self.state.__dict__)
+        snap.x = self.state.x.copy()
+        snap.P = self.state.P.copy()
+        return snap
+
+    def restore(self, snapshot: RoadState) -> None:
+        """Go back to a snapshot (which stays as it is)."""
+        self.state = snapshot
+        self.state = self.snapshot()
+
+    def estimate(self) -> FusedEstimate | None:
+        """The current estimate, or None before initialisation."""
+        return self._estimate() if self.state.initialized else None
+
+    def correct(self, m: Measurement[Array]) -> bool:
+        """Apply an external measurement (map feedback); False when it fails the gate."""
+        s = self.state
+        if not s.initialized:
+            return False
+        z, h, H, R = m.model(s.x)
+        limit = kalman.gate_limit(len(z))
+        s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        return nis <= limit
+
+    def apply(self, packet: Packet) -> list[FusedEstimate]:
+        """One packet, not older than the state; the estimates it emits (GPS epochs, and at
+        least every ``output_interval_s``)."""
+        s = self.state
+        if not s.initialized:
+            if isinstance(packet, GpsFix):
+                self._try_initialize(packet)
+                return [self._estimate()] if s.initialized else []
+            self._remember_odometer(packet)
+            return []
+        gyro = packet.yaw_rate_rps if isinstance(packet, ImuSample) and self.profile.gyro \
+            else None
+        self._propagate_to(packet.t, gyro)
+        if isinstance(packet, GpsFix):
+            self._fuse_gps(packet)
+            s.last_output_t = packet.t
+            return [self._estimate()]
+        if isinstance(packet, GpsVelocityPacket):
+            self._fuse_gps_velocity(packet)
+        else:
+            self._fuse_dead_reckoning(packet)
+        if s.last_output_t is None or packet.t - s.last_output_t >= self.config.output_interval_s:
+            s.last_output_t = packet.t
+            return [self._estimate()]
+        return []
+
+    def _propagate_to(self, t: float, gyro_rps: float | None = None) -> None:
+        """Predict to ``t``; with a gyro sample, its :class:`GyroRate` update too (one
+        compiled call: no measurement object is made at 100 Hz)."""
+        s, cfg = self.state, self.config
+        assert s.t is not None
+        accel = s.accel_fwd_mps2 if self.profile.speed_from_accel else None
+        if gyro_rps is not None:
+            s.x, s.P = predict_with_gyro(s.x, s.P, max(t - s.t, 0.0), cfg.max_step_s, accel,
+                                         self.process, gyro_rps, cfg.gyro_sigma_rps)
+        elif t - s.t > 1e-9:
+            s.x, s.P = motion.predict(s.x, s.P, t - s.t, cfg.max_step_s, accel, self.process)
+        s.t = max(s.t, t)
+
+    def _update(self, m: Measurement[Array], gate_dof: int | None = None) -> float | None:
+        """Kalman update; with ``gate_dof``, refuse (return None) past the chi-square gate."""
+        z, h, H, R = m.model(self.state.x)
+        s = self.state
+        limit = math.inf if gate_dof is None else \
+            kalman.gate_limit(gate_dof, self.config.gps_gate_scale)
+        s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        if not nis <= limit:
+            return None
+        s.x[HEADING] %= 2.0 * math.pi
+        return nis
+
+    # --- dead reckoning ------------------------------------------------------------------
+    def _fuse_dead_reckoning(self, packet: Packet) -> None:
+        cfg, used = self.config, self.profile.measurements
+        if isinstance(packet, ImuSample):  # its gyro rate went in with the prediction
+            if packet.accel_fwd_mps2 is not None:
+                self.state.accel_fwd_mps2 = packet.accel_fwd_mps2
+            if packet.accel_left_mps2 is not None and LateralAccel in used:
+                self._update(LateralAccel(packet.accel_left_mps2, cfg.accel_sigma_mps2))
+        elif isinstance(packet, OdometerSample):
+            self._fuse_odometer(packet)
+        elif isinstance(packet, SteeringSample) and SteeringRate in used:
+            self._update(SteeringRate(packet.angle_rad, cfg.wheelbase_m,
+                                      cfg.steering_sigma_rad))
+
+    def _fuse_odometer(self, packet: OdometerSample) -> None:
+        cfg, s = self.config, self.state
+        if OdometerSpeed not in self.profile.measurements:
+            return
+        if self._odometer_still(packet):
+            s.still_samples += 1
+            if s.still_samples >= cfg.stationary_after_samples:
+                self._update(ZeroMotion())
+                return
+        else:
+            s.still_samples = 0
+        speed = self._odometer_speed(packet)
+        if speed is not None:
+            self._update(OdometerSpeed(speed, cfg.odometer_sigma_mps))
+
+    def _odometer_still(self, packet: OdometerSample) -> bool:
+        if packet.speed_mps is not None:
+            return packet.speed_mps == 0.0
+        distance = odometer.distance_m(packet, self.config.ticks_per_m)
+        previous, self.state.last_odo_distance_m = self.state.last_odo_distance_m, distance
+        return distance is not None and distance == previous
+
+    def _odometer_speed(self, packet: OdometerSample) -> float | None:
+        cfg = self.config
+        self.state.last_odo, speed = odometer.speed_mps(packet, self.state.last_odo,
+                                                        cfg.ticks_per_m, cfg.odometer_window_s)
+        return speed
+
+    def _remember_odometer(self, packet: Packet) -> None:
+        if isinstance(packet, OdometerSample):
+            self._odometer_still(packet)
+            self._odometer_speed(packet)
+        self.state.t = packet.t if self.state.t is None else max(self.state.t, packet.t)
+
+    # --- GPS -----------------------------------------------------------------------------
+    def _local(self, fix: GpsFix) -> tuple[float, float]:
+        if self.frame is None:
+            self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
+        return self.frame.to_local(fix.lon_deg, fix.lat_deg)
+
+    def _problem(self, fix: GpsFix) -> str | None:
+        return gps_problem(fix, self.config.min_sats, self.config.max_hdop)
+
+    def _sigma_m(self, fix: GpsFix) -> float:
+        return gps_sigma_m(fix, self.config.gps_uere_m, self.config.gps_default_sigma_m)
+
+    def _try_initialize(self, fix: GpsFix) -> None:
+        s, cfg = self.state, self.config
+        bad = self._problem(fix)
+        s.t = fix.t if s.t is None else max(s.t, fix.t)
+        if bad is not None:
+            s.gps = GpsUsage(False, 0.0, bad)
+            return
+        east, north = self._local(fix)
+        heading, speed = None, fix.speed_mps
+        if fix.heading_rad is not None and (fix.speed_mps or 0.0) >= \
+                cfg.min_speed_for_gps_heading_mps:
+            heading = fix.heading_rad
+        elif s.first_fix is not None and fix.t > s.first_fix[0]:
+            t0, e0, n0 = s.first_fix
+            moved = math.hypot(east - e0, north - n0)
+            if moved >= cfg.initial_heading_min_move_m:
+                heading = bearing_rad(e0, n0, east, north)
+                speed = speed if speed is not None else moved / (fix.t - t0)
+        if heading is None:
+            if s.first_fix is None or math.hypot(east - s.first_fix[1],
+                                                 north - s.first_fix[2]) > 50.0:
+                s.first_fix = (fix.t, east, north)
+            s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
+            return
+        self._reset_from_gps(fix, east, north, heading, speed or 0.0)
+        s.initialized = True
+        s.gps = GpsUsage(True, 1.0, "initialised from GPS")
+
+    def _reset_from_gps(self, fix: GpsFix, east: float, north: float, heading: float | None,
+                        speed: float | None) -> None:
+        s, cfg = self.state, self.config
+        sigma = self._sigma_m(fix)
+        s.x[X_M], s.x[Y_M] = east, north
+        s.P[[X_M, Y_M], :] = 0.0
+        s.P[:, [X_M, Y_M]] = 0.0
+        s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma ** 2
+        if heading is not None:
+            s.x[HEADING] = heading % (2.0 * math.pi)
+            _reset_variance(s.P, HEADING, math.radians(10.0) ** 2)
+        if speed is not None:
+            s.x[SPEED] = speed
+            _reset_variance(s.P, SPEED, 1.0)
+        if not s.initialized:
+            s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, 0.0, 1.0
+            for i, var in ((HEADING_RATE, 0.1 ** 2),
+                           (GYRO_BIAS, cfg.initial_gyro_bias_sigma_rps ** 2),
+                           (ODO_SCALE, cfg.initial_odo_scale_sigma ** 2),
+                           (ACCEL_BIAS, 0.1 ** 2)):
+                _reset_variance(s.P, i, var)
+        s.gated_fixes = 0
+
+    def _fuse_gps(self, fix: GpsFix) -> None:
+        s = self.state
+        dt = fix.t - s.last_gps_t if s.last_gps_t is not None else 1.0
+        s.last_gps_t = fix.t
+        bad = self._problem(fix)
+        if bad is not None:
+            s.gps = GpsUsage(False, 0.0, bad)
+            return
+        if self.config.gps_mode == GpsMode.EKF:
+            self._fuse_gps_ekf(fix)
+        else:
+            self._fuse_gps_weighted(fix, dt)
+
+    def _fuse_gps_ekf(self, fix: GpsFix) -> None:
+        s, cfg = self.state, self.config
+        east, north = self._local(fix)
+        nis = self._update(GpsPosition(east, north, self._sigma_m(fix)), gate_dof=2)
+        if nis is None:
+            s.gated_fixes += 1
+            if s.gated_fixes >= cfg.reinit_after_gated_fixes:
+                self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
+                s.gps = GpsUsage(True, 1.0, "re-initialised: estimate far from GPS too long")
+            else:
+                s.gps = GpsUsage(False, 0.0, "gated: innovation too large")
+            return
+        s.gated_fixes = 0
+        heading = self._gps_heading(fix)
+        if heading is not None and fix.speed_mps is not None:
+            self._fuse_gps_course(heading, fix.speed_mps)
+        elif self.profile.gps_alone and fix.speed_mps is not None and fix.speed_mps < 0.5:
+            self._update(ZeroMotion(sigma_mps=0.3, sigma_rps=0.05))
+        s.gps = GpsUsage(True, 1.0, "accepted", nis=nis)
+
+    def _fuse_gps_velocity(self, v: GpsVelocityPacket) -> None:
+        """A velocity-only GPS message (NMEA VTG): course and speed when moving."""
+        if v.heading_rad is not None and v.speed_mps >= self.config.min_speed_for_gps_heading_mps:
+            self._fuse_gps_course(v.heading_rad, v.speed_mps)
+
+    def _fuse_gps_course(self, course_rad: float, speed_mps: float) -> None:
+        """GPS course and speed; a heading the gate keeps refusing is replaced by the course
+        (after a long stop or outage the filter's heading can be far off and overconfident)."""
+        s, cfg = self.state, self.config
+        gate = None if self.profile.gps_alone else 2
+        nis = self._update(GpsVelocity(speed_mps, course_rad, cfg.gps_velocity_sigma_mps),
+                           gate_dof=gate)
+        if nis is not None:
+            s.gated_courses = 0
+            return
+        s.gated_courses += 1
+        if s.gated_courses >= cfg.reset_heading_after_gated_courses:
+            s.x[HEADING], s.x[SPEED] = course_rad % (2.0 * math.pi), speed_mps
+            _reset_variance(s.P, HEADING, math.radians(10.0) ** 2)
+            _reset_variance(s.P, SPEED, 1.0)
+            s.gated_courses = 0
+
+    def _gps_heading(self, fix: GpsFix) -> float | None:
+        fast = (fix.speed_mps or 0.0) >= self.config.min_speed_for_gps_heading_mps
+        return fix.heading_rad if fast and fix.heading_rad is not None else None
+
+    def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
+        s, cfg = self.state, self.config
+        east, north = self._local(fix)
+        distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
+        if cfg.gps_mode == GpsMode.RULES:
+            decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
+                                    distance_m=distance, gps_speed_mps=fix.speed_mps,
+                                    rejected_fixes=s.gated_fixes, dt_s=dt_s)
+        else:
+            pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, fix.speed_mps or 0.0,
+                                          s.gated_fixes)
+            action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
+                GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
+            decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
+        self._apply_decision(fix, decision, east, north)
+
+    def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float) -> None:
+        s = self.state
+        if d.action == GpsAction.REJECT:
+            s.gated_fixes += 1
+            s.gps = GpsUsage(False, 0.0, d.reason)
+            return
+        s.gated_fixes = 0
+        if d.action in (GpsAction.REINITIALIZE, GpsAction.INITIALIZE):
+            self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
+            s.gps = GpsUsage(True, 1.0, d.reason)
+            return
+        self._blend(GpsPosition(east, north, self._sigma_m(fix)).model(s.x), d.position_weight)
+        heading = self._gps_heading(fix)
+        if heading is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
+            # weighted sum of heading (wrapped) and speed with the GPS course and speed
+            self._blend(CourseAndSpeed(heading, fix.speed_mps, math.radians(5.0),
+                                       self.config.gps_velocity_sigma_mps).model(s.x),
+                        d.heading_weight)
+            s.x[HEADING] %= 2.0 * math.pi
+        s.gps = GpsUsage(True, d.position_weight, d.reason)
+
+    def _blend(self, m: Linearised, weight: float) -> None:
+        """The thesis's weighted sum: a fixed gain of ``weight`` on each measured state."""
+        s = self.state
+        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, m.z - m.h, m.H, m.R, weight * m.H.T)
+
+    # --- output --------------------------------------------------------------------------
+    def _estimate(self) -> FusedEstimate:
+        s = self.state
+        return FusedEstimate(
+            t=float(s.t or 0.0), x_m=float(s.x[X_M]), y_m=float(s.x[Y_M]),
+            heading_rad=float(s.x[HEADING] % (2.0 * math.pi)), speed_mps=float(s.x[SPEED]),
+            yaw_rate_rps=float(s.x[HEADING_RATE]),
+            position_cov_m2=s.P[:2, :2].copy(),
+            heading_sigma_rad=float(math.sqrt(max(s.P[HEADING, HEADING], 0.0))),
+            initialized=s.initialized, gps=s.gps,
+        )
+
+
+def _reset_variance(P: Array, i: int, variance: float) -> None:
+    P[i, :] = 0.0
+    P[:, i] = 0.0
+    P[i, i] = variance

@@ -1,0 +1,236 @@
+"""Measurement models of the road-vehicle filter (pure), one small object per sensor reading.
+
+Seed: Mayhew 1999, chapter 4 (gyro rate, odometer, steering angle, lateral acceleration) and
+chapter 5 (GPS); map feedback (the road constraint) after the thesis's map-matching chapter.
+Each ``model(x)`` gives :class:`~navsvc.fusion.kalman.Linearised` ``(z, h, H, R)`` at the
+8-state ``x`` of :mod:`navsvc.fusion.road.motion`; a test checks every ``H`` against central
+differences of ``h``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from navsvc.fusion import kalman
+from navsvc.fusion._jit import Array, jit
+from navsvc.fusion.kalman import Linearised
+from navsvc.fusion.road.motion import (
+    ACCEL_BIAS,
+    GYRO_BIAS,
+    HEADING,
+    HEADING_RATE,
+    N_STATES,
+    ODO_SCALE,
+    SPEED,
+    X_M,
+    Y_M,
+    ProcessNoise,
+    model_args,
+    predict_compiled,
+)
+
+
+def _row(**entries: float) -> Array:
+    H = np.zeros((1, N_STATES))
+    for name, value in entries.items():
+        H[0, _INDEX[name]] = value
+    return H
+
+
+_INDEX = {"x": X_M, "y": Y_M, "heading": HEADING, "speed": SPEED, "rate": HEADING_RATE,
+          "gyro_bias": GYRO_BIAS, "odo_scale": ODO_SCALE, "accel_bias": ACCEL_BIAS}
+GYRO_RATE_H = _row(rate=-1.0, gyro_bias=1.0)  # constant: made once (a gyro sample is 100 Hz)
+GYRO_RATE_H.flags.writeable = False
+
+
+@jit
+def gyro_rate_h(x: Array) -> float:  # pragma: no cover - compiled
+    """The gyro rate the state predicts (:class:`GyroRate`; compiled, for the fused step of
+    :func:`navsvc.fusion.road.motion.predict_with_gyro`)."""
+    return float(-x[HEADING_RATE] + x[GYRO_BIAS])
+
+
+@dataclass(frozen=True)
+class GyroRate:
+    """The gyro's z-up rate: ``-heading_rate + bias``."""
+
+    rate_left_rps: float
+    sigma_rps: float
+
+    def model(self, x: Array) -> Linearised:
+        return Linearised(np.array([self.rate_left_rps]), np.array([gyro_rate_h(x)]),
+                          GYRO_RATE_H, np.array([[self.sigma_rps ** 2]]))
+
+
+def predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
+                      accel_fwd_mps2: float | None, noise: ProcessNoise,
+                      yaw_rate_left_rps: float, sigma_rps: float) -> tuple[Array, Array]:
+    """:func:`~navsvc.fusion.road.motion.predict`, then the :class:`GyroRate` update (not
+    gated), in one compiled call: the filter's step at every gyro sample, where two calls and
+    the measurement's small arrays cost more than the arithmetic."""
+    return _predict_with_gyro(x, P, dt_s, max_step_s, *model_args(accel_fwd_mps2, noise),
+                              yaw_rate_left_rps, sigma_rps ** 2)
+
+
+@jit
+def _predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
+                       accel_fwd_mps2: float, densities: Array, turn_rate_tau_s: float,
+                       yaw_rate_left_rps: float, variance: float
+                       ) -> tuple[Array, Array]:  # pragma: no cover - compiled
+    x, P = predict_compiled(x, P, dt_s, max_step_s, accel_fwd_mps2, densities,
+                            turn_rate_tau_s)
+    x_new, P_new, nis = kalman.correct_compiled(
+        x, P, np.array([yaw_rate_left_rps]), np.array([gyro_rate_h(x)]), GYRO_RATE_H,
+        np.array([[variance]]), np.inf)
+    if nis <= np.inf:  # a NaN innovation leaves the state as it was
+        x_new[HEADING] %= 2.0 * math.pi
+    return x_new, P_new
+
+
+@dataclass(frozen=True)
+class OdometerSpeed:
+    """The odometer's speed: ``scale x speed``."""
+
+    speed_mps: float
+    sigma_mps: float
+
+    def model(self, x: Array) -> Linearised:
+        h = x[ODO_SCALE] * x[SPEED]
+        return Linearised(np.array([self.speed_mps]), np.array([h]),
+                          _row(speed=x[ODO_SCALE], odo_scale=x[SPEED]),
+                          np.array([[self.sigma_mps ** 2]]))
+
+
+@dataclass(frozen=True)
+class LateralAccel:
+    """Centripetal acceleration to the left: ``speed x (-heading_rate)`` (thesis config 4)."""
+
+    accel_left_mps2: float
+    sigma_mps2: float
+
+    def model(self, x: Array) -> Linearised:
+        h = -x[SPEED] * x[HEADING_RATE]
+        return Linearised(np.array([self.accel_left_mps2]), np.array([h]),
+                          _row(speed=-x[HEADING_RATE], rate=-x[SPEED]),
+                          np.array([[self.sigma_mps2 ** 2]]))
+
+
+@dataclass(frozen=True)
+class SteeringRate:
+    """Bicycle model (thesis config 1): heading rate ``-speed x tan(steer - bias) / wheelbase``.
+
+    The steering-angle bias lives in the ``GYRO_BIAS`` slot (this configuration has no gyro);
+    a bias of a few milliradians turns into degrees per second of heading error at speed. The
+    noise grows with speed (it is treated as constant in ``H``).
+    """
+
+    angle_left_rad: float
+    wheelbase_m: float
+    sigma_rad: float
+
+    def model(self, x: Array) -> Linearised:
+        angle = self.angle_left_rad - x[GYRO_BIAS]
+        tan_d, sec2 = math.tan(angle), 1.0 / math.cos(angle) ** 2
+        h = x[HEADING_RATE] + x[SPEED] * tan_d / self.wheelbase_m
+        sigma = abs(x[SPEED]) * self.sigma_rad * sec2 / self.wheelbase_m + 0.01
+        return Linearised(np.array([0.0]), np.array([h]),
+                          _row(rate=1.0, speed=tan_d / self.wheelbase_m,
+                               gyro_bias=-x[SPEED] * sec2 / self.wheelbase_m),
+                          np.array([[sigma ** 2]]))
+
+
+_GPS_POSITION_H = np.zeros((2, N_STATES))
+_GPS_POSITION_H[0, X_M] = _GPS_POSITION_H[1, Y_M] = 1.0
+_GPS_POSITION_H.flags.writeable = False
+
+
+@dataclass(frozen=True)
+class GpsPosition:
+    """A GPS fix in the map frame (east, north)."""
+
+    east_m: float
+    north_m: float
+    sigma_m: float
+
+    def model(self, x: Array) -> Linearised:
+        variance = self.sigma_m ** 2
+        return Linearised(np.array([self.east_m, self.north_m]), np.array([x[X_M], x[Y_M]]),
+                          _GPS_POSITION_H, np.array([[variance, 0.0], [0.0, variance]]))
+
+
+@dataclass(frozen=True)
+class GpsVelocity:
+    """GPS ground velocity (east, north): ``speed x (sin heading, cos heading)``."""
+
+    speed_mps: float
+    course_rad: float
+    sigma_mps: float
+
+    def model(self, x: Array) -> Linearised:
+        s, c = math.sin(x[HEADING]), math.cos(x[HEADING])
+        H = np.zeros((2, N_STATES))
+        H[0, SPEED], H[0, HEADING] = s, x[SPEED] * c
+        H[1, SPEED], H[1, HEADING] = c, -x[SPEED] * s
+        z = np.array([self.speed_mps * math.sin(self.course_rad),
+                      self.speed_mps * math.cos(self.course_rad)])
+        return Linearised(z, np.array([x[SPEED] * s, x[SPEED] * c]), H,
+                          np.eye(2) * self.sigma_mps ** 2)
+
+
+@dataclass(frozen=True)
+class CourseAndSpeed:
+    """GPS course and speed directly (the rules and fuzzy modes' weighted sums): the heading
+    difference, wrapped, and the speed."""
+
+    course_rad: float
+    speed_mps: float
+    sigma_heading_rad: float
+    sigma_mps: float
+
+    def model(self, x: Array) -> Linearised:
+        H = np.zeros((2, N_STATES))
+        H[0, HEADING] = H[1, SPEED] = 1.0
+        dh = math.remainder(x[HEADING] - self.course_rad, 2.0 * math.pi)
+        return Linearised(np.array([0.0, self.speed_mps]), np.array([dh, x[SPEED]]), H,
+                          np.diag([self.sigma_heading_rad ** 2, self.sigma_mps ** 2]))
+
+
+@dataclass(frozen=True)
+class ZeroMotion:
+    """Zero-velocity update while stationary: speed 0 and heading rate 0."""
+
+    sigma_mps: float = 0.01
+    sigma_rps: float = 1e-3
+
+    def model(self, x: Array) -> Linearised:
+        H = np.zeros((2, N_STATES))
+        H[0, SPEED] = H[1, HEADING_RATE] = 1.0
+        return Linearised(np.zeros(2), x[[SPEED, HEADING_RATE]].copy(), H,
+                          np.diag([self.sigma_mps ** 2, self.sigma_rps ** 2]))
+
+
+@dataclass(frozen=True)
+class RoadConstraint:
+    """Map feedback: the position lies on a road line and the heading follows it.
+
+    The first row is the offset across the road (the along-road offset is not observed); the
+    second the heading difference, wrapped, with the road's direction as measured heading.
+    """
+
+    east_m: float
+    north_m: float
+    road_bearing_rad: float
+    sigma_across_m: float
+    sigma_heading_rad: float
+
+    def model(self, x: Array) -> Linearised:
+        nx_, ny_ = math.cos(self.road_bearing_rad), -math.sin(self.road_bearing_rad)  # normal
+        across = (x[X_M] - self.east_m) * nx_ + (x[Y_M] - self.north_m) * ny_
+        dh = math.remainder(x[HEADING] - self.road_bearing_rad, 2.0 * math.pi)
+        H = np.zeros((2, N_STATES))
+        H[0, X_M], H[0, Y_M], H[1, HEADING] = nx_, ny_, 1.0
+        return Linearised(np.zeros(2), np.array([across, dh]), H,
+                          np.diag([self.sigma_across_m ** 2, self.sigma_heading_rad ** 2]))
