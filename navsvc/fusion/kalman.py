@@ -42,8 +42,10 @@ class Measurement(Protocol[State_contra]):
     def model(self, state: State_contra) -> Linearised: ...
 
 
-# chi-square quantiles (probability 0.999) by degrees of freedom, for innovation gating
-CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467, 5: 20.515, 6: 22.458}
+# chi-square quantiles (probability 0.999) by degrees of freedom, for innovation gating; 3 and
+# 6 rounded as the INS has always had them (16.266, 22.458): its soft gate scales R by
+# nis / limit, so the last digit shows in its output
+CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.27, 4: 18.467, 5: 20.515, 6: 22.46}
 
 @jit
 def matmul(A: Array, B: Array) -> Array:  # pragma: no cover - compiled

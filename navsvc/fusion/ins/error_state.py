@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
 from navsvc.fusion.ins.attitude import dcm_to_euler, skew
 from navsvc.fusion.ins.earth import EARTH_RATE_RPS, EarthModel, nav_rates, radii_m
@@ -38,11 +39,8 @@ if TYPE_CHECKING:
 N_ERR = 21
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
 SG, SA = slice(15, 18), slice(18, 21)  # gyro and accelerometer scale factors
-CHI2_3DOF_999 = 16.27  # gate for a 3-D position update (99.9 %)
-CHI2_6DOF_999 = 22.46
 GATE_FLOOR_M = 0.5
 GATED_BEFORE_SOFT = 3
-_CHI2 = {3: CHI2_3DOF_999, 6: CHI2_6DOF_999}
 
 
 class Integration(enum.Enum):
@@ -137,8 +135,9 @@ class InsFilter:
             raise ValueError(f"IMU sample at t={t} {problem}")
 
     def update(self, m: InsMeasurement) -> bool:
-        """A measurement at the state's time (the caller predicts to it first); False when
-        the chi-square gate refuses it.
+        """A measurement at the state's time (the caller predicts to it first), by the one
+        Kalman update of :mod:`navsvc.fusion.kalman`; False when the chi-square gate refuses
+        it.
 
         A soft-gated measurement (GNSS position) refused ``GATED_BEFORE_SOFT`` times in a row
         is taken with its noise inflated to the gate: the INS may be the one that is wrong,
@@ -147,24 +146,21 @@ class InsFilter:
         are not that good).
         """
         z, h, H, R = m.model(self)
-        y = z - h
-        chi2 = _CHI2[m.gate_dof]
-        s_mat = H @ self.P @ H.T + R
-        if not m.soft_gate:
-            if float(y @ np.linalg.solve(s_mat, y)) > chi2:
-                return False
-            self._apply(H, y, R, s_mat)
-            return True
-        nis = float(y @ np.linalg.solve(s_mat + GATE_FLOOR_M**2 * np.eye(len(y)), y))
-        if nis > chi2:
-            self.gated += 1
-            if self.gated < GATED_BEFORE_SOFT:
-                return False
-            R = R * (nis / chi2)
-            s_mat = H @ self.P @ H.T + R
-        else:
-            self.gated = 0
-        self._apply(H, y, R, s_mat)
+        limit = kalman.gate_limit(m.gate_dof)
+        if m.soft_gate:
+            nis = kalman.nis(self.P, H, R + GATE_FLOOR_M**2 * np.eye(len(z)), z - h)
+            if nis > limit:
+                self.gated += 1
+                if self.gated < GATED_BEFORE_SOFT:
+                    return False
+                R = R * (nis / limit)
+            else:
+                self.gated = 0
+            limit = math.inf
+        dx, self.P, nis = kalman.correct(self.dx, self.P, z, h, H, R, limit)
+        if not nis <= limit:
+            return False
+        self._correct(dx)
         return True
 
     def position_cov_ned_m2(self) -> Array:
@@ -208,17 +204,10 @@ class InsFilter:
         return np.concatenate([s.v_ned, gyro_rps - s.gyro_bias_rps - earth_rate_body(
             s, self._rotating)]), h
 
-    def _apply(self, h: Array, y: Array, r: Array, s_mat: Array) -> None:
-        """The Kalman update (Joseph form), then the correction of the estimate."""
-        k = self.P @ h.T @ np.linalg.inv(s_mat)
-        ikh = np.eye(N_ERR) - k @ h
-        p = ikh @ self.P @ ikh.T + k @ r @ k.T
-        self.P = 0.5 * (p + p.T)
-        self._correct(k @ y)
-
     def _correct(self, dx: Array) -> None:
-        """Take an estimated error: fed back at once (feedback) or kept (feedforward)."""
-        self.dx = self.dx + dx
+        """Take the updated estimate of the error: fed back at once (feedback) or kept
+        (feedforward)."""
+        self.dx = dx
         if self.integration == Integration.FEEDBACK:
             self._feed_back()
 
@@ -227,10 +216,10 @@ class InsFilter:
         estimated error (feedforward)."""
         if self.integration != Integration.FEEDFORWARD:
             return self.state
-        return _corrected(self.state, self.dx)
+        return corrected(self.state, self.dx)
 
     def _feed_back(self) -> None:
-        self.state = _corrected(self.state, self.dx)
+        self.state = corrected(self.state, self.dx)
         self.state.gyro_bias_rps = self.state.gyro_bias_rps + self.dx[BG]
         self.state.accel_bias_mps2 = self.state.accel_bias_mps2 + self.dx[BA]
         self.state.gyro_scale = self.state.gyro_scale + self.dx[SG]
@@ -272,7 +261,7 @@ def _propagate(p: Array, phi: Array, q_dt: Array) -> Array:
     return 0.5 * (out + out.T)
 
 
-def _corrected(s: NavState, dx: Array) -> NavState:
+def corrected(s: NavState, dx: Array) -> NavState:
     """The navigation state less an estimated error (position, velocity, attitude)."""
     out = s.copy()
     rm, rn = radii_m(s.lat_rad)

@@ -164,7 +164,7 @@ class DirectInsFilter(InsFilter):
         return self.P[POS, POS] * np.outer(m, m)
 
     def _correct(self, dx: Array) -> None:
-        """The estimated error comes off the state itself."""
+        """The estimated error comes off the state itself (``dx`` stays zero)."""
         x = total_state(self.state) - dx
         if not np.all(np.isfinite(x)):
             raise FloatingPointError("INS correction produced a non-finite state")

@@ -94,6 +94,7 @@ class RoadFilter:
         self.profile = config.profile
         self.frame = frame
         self.state = RoadState()
+        self._gyro = self.profile.gyro  # read at every IMU sample
         tau = self.profile.turn_rate_tau_s
         self.process = config.process if config.process.turn_rate_tau_s is not None or \
             tau is None else replace(config.process, turn_rate_tau_s=tau)
@@ -141,8 +142,7 @@ class RoadFilter:
                 return [self._estimate()] if s.initialized else []
             self._remember_odometer(packet)
             return []
-        gyro = packet.yaw_rate_rps if isinstance(packet, ImuSample) and self.profile.gyro \
-            else None
+        gyro = packet.yaw_rate_rps if isinstance(packet, ImuSample) and self._gyro else None
         self._propagate_to(packet.t, gyro)
         if isinstance(packet, GpsFix):
             self._fuse_gps(packet)
