@@ -3,7 +3,7 @@
 Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md), loosely coupled: GNSS position (with the
 antenna's lever arm) and velocity; body-frame velocity for wheel speed, the non-holonomic
 constraint and stops; the zero-rate update at rest. Each ``model(ins)`` gives
-:class:`~navsvc.fusion.kalman.Linearised` ``(z, h, H, R)`` in the filter's own state: ``z`` is
+``(z, h, H, R)`` (:data:`~navsvc.fusion.kalman.Linearised`) in the filter's own state: ``z`` is
 the residual (predicted less measured) and ``h = H dx`` its prediction from the estimated
 error ``dx``, so the update is the one Kalman update of :mod:`navsvc.fusion.kalman`. The
 residual and ``H`` come from the filter (:class:`.error_state.InsFilter` analytic,
@@ -35,7 +35,7 @@ class InsMeasurement(Protocol):
 
 
 def _linearised(ins: InsFilter, y: Array, H: Array, R: Array) -> Linearised:
-    return Linearised(y, H @ ins.dx, H, R)
+    return (y, H @ ins.dx, H, R)
 
 
 @dataclass(frozen=True)

@@ -392,7 +392,8 @@ class RoadFilter:
     def _blend(self, m: Linearised, weight: float) -> None:
         """The thesis's weighted sum: a fixed gain of ``weight`` on each measured state."""
         s = self.state
-        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, m.z - m.h, m.H, m.R, weight * m.H.T)
+        z, h, H, R = m
+        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, weight * H.T)
 
     # --- output --------------------------------------------------------------------------
     def _estimate(self) -> FusedEstimate:

@@ -2,7 +2,7 @@
 
 Seed: Mayhew 1999, chapter 4 (gyro rate, odometer, steering angle, lateral acceleration) and
 chapter 5 (GPS); map feedback (the road constraint) after the thesis's map-matching chapter.
-Each ``model(x)`` gives :class:`~navsvc.fusion.kalman.Linearised` ``(z, h, H, R)`` at the
+Each ``model(x)`` gives ``(z, h, H, R)`` (:data:`~navsvc.fusion.kalman.Linearised`) at the
 8-state ``x`` of :mod:`navsvc.fusion.road.motion`; a test checks every ``H`` against central
 differences of ``h``.
 """
@@ -61,7 +61,7 @@ class GyroRate:
     sigma_rps: float
 
     def model(self, x: Array) -> Linearised:
-        return Linearised(np.array([self.rate_left_rps]), np.array([gyro_rate_h(x)]),
+        return (np.array([self.rate_left_rps]), np.array([gyro_rate_h(x)]),
                           GYRO_RATE_H, np.array([[self.sigma_rps ** 2]]))
 
 
@@ -99,7 +99,7 @@ class OdometerSpeed:
 
     def model(self, x: Array) -> Linearised:
         h = x[ODO_SCALE] * x[SPEED]
-        return Linearised(np.array([self.speed_mps]), np.array([h]),
+        return (np.array([self.speed_mps]), np.array([h]),
                           _row(speed=x[ODO_SCALE], odo_scale=x[SPEED]),
                           np.array([[self.sigma_mps ** 2]]))
 
@@ -113,7 +113,7 @@ class LateralAccel:
 
     def model(self, x: Array) -> Linearised:
         h = -x[SPEED] * x[HEADING_RATE]
-        return Linearised(np.array([self.accel_left_mps2]), np.array([h]),
+        return (np.array([self.accel_left_mps2]), np.array([h]),
                           _row(speed=-x[HEADING_RATE], rate=-x[SPEED]),
                           np.array([[self.sigma_mps2 ** 2]]))
 
@@ -136,7 +136,7 @@ class SteeringRate:
         tan_d, sec2 = math.tan(angle), 1.0 / math.cos(angle) ** 2
         h = x[HEADING_RATE] + x[SPEED] * tan_d / self.wheelbase_m
         sigma = abs(x[SPEED]) * self.sigma_rad * sec2 / self.wheelbase_m + 0.01
-        return Linearised(np.array([0.0]), np.array([h]),
+        return (np.array([0.0]), np.array([h]),
                           _row(rate=1.0, speed=tan_d / self.wheelbase_m,
                                gyro_bias=-x[SPEED] * sec2 / self.wheelbase_m),
                           np.array([[sigma ** 2]]))
@@ -157,7 +157,7 @@ class GpsPosition:
 
     def model(self, x: Array) -> Linearised:
         variance = self.sigma_m ** 2
-        return Linearised(np.array([self.east_m, self.north_m]), np.array([x[X_M], x[Y_M]]),
+        return (np.array([self.east_m, self.north_m]), np.array([x[X_M], x[Y_M]]),
                           _GPS_POSITION_H, np.array([[variance, 0.0], [0.0, variance]]))
 
 
@@ -176,7 +176,7 @@ class GpsVelocity:
         H[1, SPEED], H[1, HEADING] = c, -x[SPEED] * s
         z = np.array([self.speed_mps * math.sin(self.course_rad),
                       self.speed_mps * math.cos(self.course_rad)])
-        return Linearised(z, np.array([x[SPEED] * s, x[SPEED] * c]), H,
+        return (z, np.array([x[SPEED] * s, x[SPEED] * c]), H,
                           np.eye(2) * self.sigma_mps ** 2)
 
 
@@ -194,7 +194,7 @@ class CourseAndSpeed:
         H = np.zeros((2, N_STATES))
         H[0, HEADING] = H[1, SPEED] = 1.0
         dh = math.remainder(x[HEADING] - self.course_rad, 2.0 * math.pi)
-        return Linearised(np.array([0.0, self.speed_mps]), np.array([dh, x[SPEED]]), H,
+        return (np.array([0.0, self.speed_mps]), np.array([dh, x[SPEED]]), H,
                           np.diag([self.sigma_heading_rad ** 2, self.sigma_mps ** 2]))
 
 
@@ -208,7 +208,7 @@ class ZeroMotion:
     def model(self, x: Array) -> Linearised:
         H = np.zeros((2, N_STATES))
         H[0, SPEED] = H[1, HEADING_RATE] = 1.0
-        return Linearised(np.zeros(2), x[[SPEED, HEADING_RATE]].copy(), H,
+        return (np.zeros(2), x[[SPEED, HEADING_RATE]].copy(), H,
                           np.diag([self.sigma_mps ** 2, self.sigma_rps ** 2]))
 
 
@@ -232,5 +232,5 @@ class RoadConstraint:
         dh = math.remainder(x[HEADING] - self.road_bearing_rad, 2.0 * math.pi)
         H = np.zeros((2, N_STATES))
         H[0, X_M], H[0, Y_M], H[1, HEADING] = nx_, ny_, 1.0
-        return Linearised(np.zeros(2), np.array([across, dh]), H,
+        return (np.zeros(2), np.array([across, dh]), H,
                           np.diag([self.sigma_across_m ** 2, self.sigma_heading_rad ** 2]))
