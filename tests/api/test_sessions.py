@@ -82,7 +82,7 @@ def test_body_that_is_not_an_array(client: httpx.Client) -> None:
     assert r.status_code == 422
     r = client.post(f"/sessions/{s['id']}/packets", content=b"[{",
                     headers={"content-type": "application/json"})
-    assert r.status_code == 422 and "JSON" in r.json()["error"]["message"]
+    assert r.status_code == 400 and "JSON" in r.json()["error"]["message"]
 
 
 def test_unknown_session(client: httpx.Client) -> None:
