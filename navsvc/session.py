@@ -350,7 +350,12 @@ class Ingested:
 
 
 class SessionStore:
-    """The live sessions, backed by a trip log."""
+    """The live sessions, backed by a trip log.
+
+    After a restart the open sessions of the log are known at once but rebuilt as they are
+    needed (:meth:`reopen`): a session a request names is rebuilt then, the rest one at a
+    time by :meth:`restore_next` (the API calls it between requests), so the server answers
+    from its first second whatever the number of sessions."""
 
     def __init__(self, graph: RoadGraph, triplog: TripLog, *, idle_timeout_s: float = 3600.0,
                  max_sessions_per_owner: int = 10_000,
@@ -361,14 +366,16 @@ class SessionStore:
         self.max_sessions_per_owner = max_sessions_per_owner
         self._clock = clock
         self._sessions: dict[str, LiveSession] = {}
+        self._pending: dict[str, LoggedSession] = {}  # open in the log, not rebuilt yet
 
     def __len__(self) -> int:
-        return len(self._sessions)
+        return len(self._sessions) + len(self._pending)
 
     def create(self, owner: str, vehicle_id: str, options: dict[str, Any]) -> LiveSession:
         """Start a session (options as in :func:`config_from_options`)."""
         config = config_from_options(options)
-        owned = sum(1 for s in self._sessions.values() if s.owner == owner)
+        owned = sum(1 for s in (*self._sessions.values(), *self._pending.values())
+                    if s.owner == owner)
         if owned >= self.max_sessions_per_owner:
             raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
                                 f"{self.max_sessions_per_owner}")
@@ -383,12 +390,17 @@ class SessionStore:
         return session
 
     def get(self, session_id: str, owner: str) -> LiveSession:
+        pending = self._pending.get(session_id)
+        if pending is not None and pending.owner == owner:
+            self._restore(self._pending.pop(session_id))
         session = self._sessions.get(session_id)
         if session is None or session.owner != owner:
             raise SessionNotFound(f"no session {session_id!r}")
         return session
 
     def sessions(self, owner: str) -> list[LiveSession]:
+        for logged in [p for p in self._pending.values() if p.owner == owner]:
+            self._restore(self._pending.pop(logged.id))
         return [s for s in self._sessions.values() if s.owner == owner]
 
     def ingest(self, session: LiveSession, records: list[Any],
@@ -490,13 +502,31 @@ class SessionStore:
             self._close(session_id)
         return idle
 
+    def reopen(self) -> int:
+        """Take the open sessions of the trip log (after a restart), to be rebuilt as they
+        are needed; return how many."""
+        self._pending = {s.id: s for s in self.triplog.open_sessions()
+                         if s.id not in self._sessions}
+        return len(self._pending)
+
+    def restore_next(self) -> bool:
+        """Rebuild one session taken by :meth:`reopen`; False when none is left."""
+        if not self._pending:
+            return False
+        self._restore(self._pending.pop(next(iter(self._pending))))
+        return True
+
     def restore(self) -> int:
-        """Rebuild every open session of the trip log (after a restart); return how many."""
-        for logged in self.triplog.open_sessions():
-            session = self._load(logged)
-            self._sessions[logged.id] = session
-            log.debug("session %s restored: %d packets", logged.id, session.packets)
+        """Rebuild every open session of the trip log now; return how many there are."""
+        self.reopen()
+        while self.restore_next():
+            pass
         return len(self._sessions)
+
+    def _restore(self, logged: LoggedSession) -> None:
+        session = self._load(logged)
+        self._sessions[logged.id] = session
+        log.debug("session %s restored: %d packets", logged.id, session.packets)
 
     def _load(self, logged: LoggedSession) -> LiveSession:
         """A session rebuilt from the trip log: its last checkpoint, then the batches logged

@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from importlib.metadata import version
 from dataclasses import dataclass, field
 from typing import Any
 
 import networkx as nx
 import numpy as np
-import osmnx as ox
 import shapely
 from pyproj import CRS
 
@@ -105,7 +105,7 @@ class MapInfo:
     consolidate_m: float
     source_name: str = ""
     source_sha256: str = ""
-    osmnx_version: str = ox.__version__
+    osmnx_version: str = field(default_factory=lambda: version("osmnx"))
     created_utc: str = ""
 
 
@@ -122,6 +122,8 @@ def build_network(
     raw: nx.MultiDiGraph, *, consolidate_m: float = DEFAULT_CONSOLIDATE_M, network: str = "drive"
 ) -> RoadNetwork:
     """Simplify, project and consolidate osmnx's raw WGS84 graph into a :class:`RoadNetwork`."""
+    import osmnx as ox  # imports take 1.3 s (matplotlib, geopandas): only an import needs it
+
     if consolidate_m < 0.0 or not math.isfinite(consolidate_m):
         raise ValueError(f"consolidate_m must be a finite number >= 0, got {consolidate_m}")
     if raw.number_of_edges() == 0:

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import networkx as nx
 import osmium
-import osmnx as ox
 
 from roadgraph.errors import MapSourceError, NoDrivableRoadError
 
@@ -68,6 +67,8 @@ def file_sha256(path: Path) -> str:
 
 def read_osm_file(path: Path, network: str = "drive") -> nx.MultiDiGraph:
     """Read a local OSM file into osmnx's unsimplified WGS84 graph of the drivable roads."""
+    import osmnx as ox  # slow to import (1 s): the service, which never imports, goes without
+
     _check_network(network)
     _check_file(path)
     with tempfile.TemporaryDirectory(prefix="roadgraph-") as tmp:
@@ -84,6 +85,8 @@ def read_osm_file(path: Path, network: str = "drive") -> nx.MultiDiGraph:
 
 def read_graphml(path: Path) -> nx.MultiDiGraph:
     """Read a graph saved by ``osmnx.save_graphml`` (WGS84; simplified or not)."""
+    import osmnx as ox
+
     _check_file(path)
     try:
         graph: nx.MultiDiGraph = ox.load_graphml(path)
@@ -124,6 +127,8 @@ def download_graph(
     network: str = "drive",
 ) -> nx.MultiDiGraph:
     """Download the network for a place name or a ``(west, south, east, north)`` box via osmnx."""
+    import osmnx as ox
+
     _check_network(network)
     what = f"place {place!r}" if place is not None else f"bbox {bbox}"
     try:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from navsvc.api.app import _drop_closed_logs
-from navsvc.errors import BatchAlreadyApplied, TripLogInUse
+from navsvc.errors import BatchAlreadyApplied, SessionNotFound, TripLogInUse
 from navsvc.session import SessionStore
 from navsvc.triplog import LoggedSession, TripLog
 from navsvc.wire.positions import position_json
@@ -360,3 +360,24 @@ def test_a_log_of_batches_keyed_by_first_packet_is_moved_over(tmp_path: Path) ->
     assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}, {"t": 2.0}]
     log.append("s1", 3, [], rejected=2)  # a batch of refused packets has a row now
     assert [b.rejected for b in log.batches_after("s1")] == [0, 0, 2]
+
+
+def test_reopened_sessions_are_rebuilt_when_named_or_one_at_a_time(
+        sample_graph: RoadGraph, tmp_path: Path) -> None:
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    mine = [store.create("me", f"car-{i}", {"sensors": "gps_only"}) for i in range(3)]
+    theirs = store.create("them", "van", {"sensors": "gps_only"})
+    for session in (*mine, theirs):
+        store.ingest(session, GPS)
+    store.triplog.close()
+    restarted = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    assert restarted.reopen() == 4 and len(restarted) == 4
+    assert restarted._sessions == {}  # nothing rebuilt yet
+    with pytest.raises(SessionNotFound):
+        restarted.get(theirs.id, "me")  # another key's session stays hidden, and pending
+    assert restarted.get(mine[1].id, "me").packets == 6  # rebuilt on demand
+    assert set(restarted._sessions) == {mine[1].id}
+    assert {s.id for s in restarted.sessions("me")} == {s.id for s in mine}
+    assert restarted.restore_next() and not restarted.restore_next()
+    assert restarted.get(theirs.id, "them").vehicle.engine.t == GPS[-1]["t"]
+    assert len(restarted) == 4

@@ -1,7 +1,8 @@
 """The FastAPI application: routers under ``/v1``, errors as JSON, limits, session upkeep.
 
-``create_app(settings)`` opens the road graph and the trip log, restores the sessions that were
-open when the server last stopped (crash included), and expires idle sessions and drops ended
+``create_app(settings)`` opens the road graph and the trip log; the server then serves at
+once, restoring the sessions that were open when it last stopped (crash included) in the
+background (a request for one restores it first), and expires idle sessions and drops ended
 sessions' trip logs in the background.
 Every error body is ``{"error": {"code", "message"[, "fields"]}}``.
 """
@@ -63,18 +64,17 @@ def create_app(settings: Settings) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         redact_api_keys()  # here: uvicorn has set up its loggers by now
         warm_up(graph)
-        start = time.perf_counter()
-        restored = store.restore()
+        reopened = store.reopen()
         gc.collect()
         gc.freeze()  # the map and libraries stay: spare them the garbage collector's scans
         # Collections far rarer than Python's default (700, 10, 10): a full one walks every
         # session's objects (30-50 ms with 1,000 sessions), which made the p99 latency.
         gc.set_threshold(20_000, 50, 100)
-        state.metrics.sessions.set(restored)
-        log.info("serving map %r (%s); trip log %s; %d sessions restored in %.2f s",
-                 graph.map_id, settings.map_path, settings.triplog, restored,
-                 time.perf_counter() - start)
-        upkeep = [asyncio.create_task(_expire_idle(state)),
+        state.metrics.sessions.set(reopened)
+        log.info("serving map %r (%s); trip log %s; %d open sessions to restore", graph.map_id,
+                 settings.map_path, settings.triplog, reopened)
+        upkeep = [asyncio.create_task(_restore_sessions(store)),
+                  asyncio.create_task(_expire_idle(state)),
                   asyncio.create_task(_drop_closed_logs(triplog))]
         yield
         for task in upkeep:
@@ -129,6 +129,18 @@ def warm_up(graph: RoadGraph) -> None:
     inertial = [{"t": 2.0 + 0.01 * i, "kind": "imu", "yaw_rate_dps": 0.0} for i in range(1, 5)]
     odometer = [{"t": 2.0 + 0.02 * i, "kind": "odometer", "speed_mps": 11.0} for i in range(1, 3)]
     session.add_records(sorted(fixes + inertial + odometer, key=lambda r: r["t"]))
+
+
+async def _restore_sessions(store: SessionStore) -> None:
+    """Rebuild the reopened sessions one per turn of the event loop, between requests (a
+    request for one of them rebuilds it at once)."""
+    start, count = time.perf_counter(), 0
+    while store.restore_next():
+        count += 1
+        await asyncio.sleep(0)
+    if count:
+        log.info("%d sessions restored in the background in %.2f s", count,
+                 time.perf_counter() - start)
 
 
 async def _expire_idle(state: AppState) -> None:
