@@ -28,6 +28,7 @@ class StreamResult:
     positions: list[dict[str, Any]] = field(default_factory=list)
     rejected: list[dict[str, Any]] = field(default_factory=list)  # index: position in the file
     accepted: int = 0
+    reconnects: int = 0  # connections that dropped and were made again
 
 
 def create_session(url: str, options: dict[str, Any], api_key: str | None = None) -> str:
@@ -88,6 +89,7 @@ def stream_packets(url: str, session_id: str, packets: Sequence[Any], *, batch: 
                 raise ServiceError(f"{ws_url}: refused ({closed.code}): {closed.reason}"
                                    ) from exc
             failures += 1
+            result.reconnects += 1
             if failures > retries:
                 raise ServiceError(f"{ws_url}: {exc} (gave up after {retries} retries)"
                                    ) from exc
