@@ -2,8 +2,9 @@
 
 Builds the trip log a crashed server leaves: ``--sessions`` open sessions with ``--duration``
 seconds of data each (100 Hz IMU and 1 Hz GPS by default, sent in 0.1 s batches), saved as the
-service saves them (a checkpoint every 500 packets or 5 s of packet time), each cut at a random
-moment of its last seconds, so that each has a tail logged after its last checkpoint. The
+service saves them (a checkpoint every 500 packets, at most every 2 s of packet time), each cut
+at a random moment of its last seconds, so that each has a tail logged after its last
+checkpoint. The
 sessions are ``--drives`` distinct simulated drives, each copied to sessions/drives sessions of
 the log with new ids: what that many vehicles on those routes would have written; running the
 pipeline once per drive instead of once per session keeps the build affordable.
@@ -93,6 +94,7 @@ def copy_sessions(log_path: Path, originals: list[dict[str, Any]], sessions: int
     """Copy the drives' sessions (rows, and checkpoints when asked) until the log holds
     ``sessions``; the originals are closed. Returns each session's expected reply."""
     db = sqlite3.connect(log_path, isolation_level=None)
+    db.execute("PRAGMA cache_size=-2000000")  # 2 GB: the index inserts stay in memory
     db.execute("BEGIN")
     expected = []
     for k in tqdm(range(sessions), desc="copy sessions", unit="session"):
@@ -115,8 +117,9 @@ def copy_sessions(log_path: Path, originals: list[dict[str, Any]], sessions: int
             db.execute("INSERT INTO checkpoints VALUES (?, ?, ?, ?, ?)",
                        (new_id, base + 1 + rowids.index(row[0]), *row[1:]))
         expected.append({**original, "id": new_id})
-    db.execute("UPDATE sessions SET closed = 1 WHERE id IN (%s)"
-               % ",".join("?" * len(originals)), [o["id"] for o in originals])
+    marks = ",".join("?" * len(originals))
+    db.execute(f"UPDATE sessions SET closed = 1 WHERE id IN ({marks})",
+               [o["id"] for o in originals])
     db.execute("COMMIT")
     db.close()
     return expected

@@ -259,19 +259,27 @@ def batch_reply(result: BatchResult, frame: LocalFrame) -> dict[str, Any]:
 
 
 # --- checkpoints ------------------------------------------------------------------------
+# A checkpoint after every 500 packets (a restart then replays at most that many, ~25 ms of
+# work), but not more often than every 2 s (a vehicle sending 1,000 packets a second would
+# otherwise pickle its pipeline twice a second).
 CHECKPOINT_EVERY_PACKETS = 500
-CHECKPOINT_EVERY_S = 5.0
+CHECKPOINT_MIN_INTERVAL_S = 2.0
+
+
+PICKLED_SOURCES = ("navsvc/fusion", "navsvc/matching", "navsvc/session.py", "navsvc/types.py",
+                   "navsvc/errors.py", "roadgraph")  # the code of what a checkpoint holds
 
 
 @cache
 def code_id() -> str:
-    """A hash of navsvc's and roadgraph's source: a checkpoint is only loaded by the code that
-    wrote it (pickled objects of changed classes would load, and be wrong)."""
+    """A hash of the source of the classes a checkpoint holds: a checkpoint is only loaded by
+    the code that wrote it (pickled objects of changed classes would load, and be wrong)."""
+    root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
-    for package in ("navsvc", "roadgraph"):
-        root = Path(__file__).resolve().parent.parent / package
-        for source in sorted(root.rglob("*.py")):
-            digest.update(source.relative_to(root.parent).as_posix().encode())
+    for name in PICKLED_SOURCES:
+        path = root / name
+        for source in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            digest.update(source.relative_to(root).as_posix().encode())
             digest.update(source.read_bytes())
     return digest.hexdigest()
 
@@ -462,13 +470,10 @@ class SessionStore:
         return result
 
     def _checkpoint_if_due(self, session: LiveSession) -> None:
-        counted = session.packets + session.rejected
-        now = self._clock()
-        if counted == session.checkpoint_packets or (
-                counted - session.checkpoint_packets < CHECKPOINT_EVERY_PACKETS
-                and now - session.checkpoint_clock < CHECKPOINT_EVERY_S):
-            return
-        self.checkpoint(session)
+        if session.packets + session.rejected - session.checkpoint_packets >= \
+                CHECKPOINT_EVERY_PACKETS and \
+                self._clock() - session.checkpoint_clock >= CHECKPOINT_MIN_INTERVAL_S:
+            self.checkpoint(session)
 
     def checkpoint(self, session: LiveSession) -> None:
         """Save the session's pipeline, so that a restart replays only what follows. A failure

@@ -214,7 +214,9 @@ def test_a_restart_loads_the_checkpoint_and_replays_only_the_tail(
     """The restored pipeline continues exactly as the one that never stopped."""
     monkeypatch.setattr("navsvc.session.CHECKPOINT_EVERY_PACKETS", 400)
     packets = _batches(_drive(sample_graph))
-    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    ticks = iter(range(10**6))  # a clock a second ahead at each reading
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"),
+                         clock=lambda: float(next(ticks)))
     session = store.create("", "car", {})
     half = len(packets) // 2
     for batch in packets[:half]:
