@@ -382,8 +382,8 @@ class SessionStore:
     def create(self, owner: str, vehicle_id: str, options: dict[str, Any]) -> LiveSession:
         """Start a session (options as in :func:`config_from_options`)."""
         config = config_from_options(options)
-        owned = sum(1 for s in (*self._sessions.values(), *self._pending.values())
-                    if s.owner == owner)
+        owned = sum(s.owner == owner for s in self._sessions.values()) + \
+            sum(p.owner == owner for p in self._pending.values())
         if owned >= self.max_sessions_per_owner:
             raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
                                 f"{self.max_sessions_per_owner}")
