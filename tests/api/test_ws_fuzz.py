@@ -233,8 +233,9 @@ ACTION = st.tuples(st.integers(0, len(FUZZED_OPTIONS) - 1), st.sampled_from(
 ACTIONS = st.lists(ACTION, min_size=1, max_size=5)
 
 
-def _gps(dt: float) -> dict[str, Any]:
-    return {"t": Rel(dt), "kind": "gps", "lat": 43.7384 + dt * 1e-4, "lon": 7.4246}
+def _gps(dt: float, step: int = 0) -> dict[str, Any]:
+    """A fix ``dt`` after the session's clock, ``step`` times 11 m north of the first."""
+    return {"t": Rel(dt), "kind": "gps", "lat": 43.7384 + step * 1e-4, "lon": 7.4246}
 
 
 # always tried: the messages of the reliability issue, over both channels ...
@@ -253,9 +254,9 @@ ISSUE_MESSAGES: list[Action] = [(0, Send("ws", m)) for m in _ISSUE] + [
 # ... an NMEA speed of 1e308 knots (JSON speeds stop at 100 m/s) to a GPS-only session ...
 _VTG = {"t": Rel(0.5), "kind": "nmea", "sentence": "$GPVTG,054.7,T,034.4,M,1e308,N,010.2,K*09"}
 WITNESS = len(FUZZED_OPTIONS)  # a GPS-only session of its own, which random actions leave be
-NMEA_SPEED: list[Action] = [(WITNESS, Send("ws", [_gps(0.0), _gps(1.0)])),
-                            (WITNESS, Send("ws", _VTG)), (WITNESS, Send("ws", [_gps(1.0)])),
-                            (WITNESS, Send("rest", [_gps(1.0)]))]
+NMEA_SPEED: list[Action] = [(WITNESS, Send("ws", [_gps(i, i) for i in range(5)])),
+                            (WITNESS, Send("ws", _VTG)), (WITNESS, Send("ws", [_gps(1.0, 6)])),
+                            (WITNESS, Send("rest", [_gps(1.0, 7)]))]
 # ... and a simulator's truth record, sent along with its packets
 TRUTH: list[Action] = [(0, Send("ws", [_gps(0.0), {"t": Rel(0.0), "kind": "truth"}]))]
 
