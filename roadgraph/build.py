@@ -123,6 +123,7 @@ class MapInfo:
     osm_missing_node_refs: int | None = None  # references to nodes missing from the file
     osm_negative_ids: int | None = None  # nodes and ways with JOSM's negative (new) ids
     osm_josm_deleted: int | None = None  # objects a JOSM file marks deleted, left out
+    osm_invalid_locations: int | None = None  # road nodes off the globe, taken as missing
 
 
 @dataclass(frozen=True)
@@ -155,6 +156,10 @@ def build_network(
             graph, tolerance=consolidate_m, rebuild_graph=True, dead_ends=True,
             reconnect_edges=True,
         )
+        if graph.number_of_edges() == 0:
+            raise NoDrivableRoadError(
+                f"{source}: no road left after merging the nodes within {consolidate_m:g} m of "
+                "each other: every road is shorter than that; import with --consolidate-m 0")
     net = network_from_projected(graph, frame, network=network, consolidate_m=consolidate_m,
                                  source=source)
     merged = simplified_nodes - len(net.nodes)

@@ -220,6 +220,9 @@ def _summary_rows(info: MapInfo) -> list[tuple[str, str]]:
         rows.append(("negative ids", f"{info.osm_negative_ids} (new objects in a JOSM file)"))
     if info.osm_josm_deleted:
         rows.append(("JOSM deleted", f"{info.osm_josm_deleted} objects left out"))
+    if info.osm_invalid_locations:
+        rows.append(("invalid locations", f"{info.osm_invalid_locations} road nodes, taken as "
+                                          "missing"))
     return rows
 
 

@@ -103,12 +103,16 @@ def _with_report(info: MapInfo, report: ReadReport | None) -> MapInfo:
         osm_ways_not_in_network=report.ways_not_in_network,
         osm_missing_node_refs=report.missing_node_refs,
         osm_negative_ids=report.negative_ids, osm_josm_deleted=report.josm_deleted,
+        osm_invalid_locations=report.invalid_locations,
     )
 
 
 def import_warnings(info: MapInfo) -> list[str]:
     """What a user should know about a map that imported, one sentence each."""
     warnings = []
+    if info.osm_invalid_locations:
+        warnings.append(f"{info.osm_invalid_locations} road nodes with an invalid location "
+                        "(beyond 90 degrees of latitude or 180 of longitude), taken as missing")
     if info.osm_missing_node_refs:
         warnings.append(
             f"clipped extract: {info.osm_missing_node_refs} node references missing from the "

@@ -84,6 +84,7 @@ class ReadReport:
     missing_node_refs: int  # references from network ways to nodes not in the file
     negative_ids: int  # nodes and ways with negative ids (new in JOSM, not in OpenStreetMap)
     josm_deleted: int  # objects a JOSM file marks action="delete", left out
+    invalid_locations: int = 0  # road nodes outside +-90 deg / +-180 deg, taken as missing
 
 
 @dataclass(frozen=True)
@@ -147,13 +148,14 @@ def read_osm(path: Path, network: str = "drive", *, progress: bool = False,
     ways = _scan_ways(path, network, deleted, progress)
     _check_some_ways(path, network, ways)
     step("reading nodes")
-    nodes, negative_nodes = _read_nodes(path, _needed_nodes(ways, deleted), progress)
+    nodes, negative_nodes, invalid = _read_nodes(path, _needed_nodes(ways, deleted), progress)
     pieces, cut, outside, missing = _clip(ways, nodes)
     report = ReadReport(
         ways_kept=len({way_id for way_id, _ in pieces}), ways_cut=cut,
         ways_dropped_outside=outside, ways_dropped_one_node=ways.one_node,
         ways_not_in_network=sum(ways.other.values()), missing_node_refs=missing,
         negative_ids=ways.negative + negative_nodes, josm_deleted=len(deleted),
+        invalid_locations=invalid,
     )
     if not pieces:
         raise NoDrivableRoadError(
@@ -332,11 +334,15 @@ def _needed_nodes(ways: _Ways, deleted: frozenset[tuple[str, int]]) -> set[int]:
     return needed - {i for kind, i in deleted if kind == "node"}
 
 
-def _read_nodes(path: Path, needed: set[int],
-                progress: bool) -> tuple[dict[int, tuple[float, float, dict[str, str]]], int]:
-    """Pass 2: location and osmnx's node tags of each needed node present in the file."""
+def _read_nodes(path: Path, needed: set[int], progress: bool
+                ) -> tuple[dict[int, tuple[float, float, dict[str, str]]], int, int]:
+    """Pass 2: location and osmnx's node tags of each needed node present in the file.
+
+    Also the number of those with a negative id, and of those with an invalid location.
+    """
     nodes: dict[int, tuple[float, float, dict[str, str]]] = {}
     seen: dict[int, int] = {}
+    invalid = 0
     # libosmium's id filter takes unsigned ids only: with negative ids, filter here
     negative = any(i < 0 for i in needed)
     filters = () if negative else (osmium.filter.IdFilter(needed),)
@@ -346,10 +352,12 @@ def _read_nodes(path: Path, needed: set[int],
             if negative and node.id not in needed:
                 continue
             _check_unique(path, "node", node, seen)
-            if node.location.valid():
-                tags = {k: node.tags[k] for k in _NODE_TAGS if k in node.tags}
-                nodes[node.id] = (node.location.lon, node.location.lat, tags)
-    return nodes, sum(1 for i in nodes if i < 0)
+            if not node.location.valid():
+                invalid += 1
+                continue
+            tags = {k: node.tags[k] for k in _NODE_TAGS if k in node.tags}
+            nodes[node.id] = (node.location.lon, node.location.lat, tags)
+    return nodes, sum(1 for i in nodes if i < 0), invalid
 
 
 def clip_refs(refs: tuple[int, ...], present: Callable[[int], bool]) -> list[tuple[int, ...]]:

@@ -7,7 +7,9 @@ is refused:
   warning. A few dead-end roads are a legal map (a hamlet, a test map, a ring road): the matcher
   can match on them; only turns need a junction, and the warning says so.
 - only ways of one node, roads none of them drivable, no road at all, every road outside the
-  extract: refused, as there is nothing to match on.
+  extract, every road shorter than the consolidation tolerance: refused, as there is nothing to
+  match on (the last with the option that keeps them).
+- road nodes with an invalid location: taken as missing (the way is cut there), with a warning.
 - duplicate node or way ids, change files, history files: refused, as the file is not one moment
   of the map and any graph built from it would be wrong.
 - negative ids (objects new in a JOSM file): imported, with a warning that their ids are not
@@ -82,6 +84,17 @@ CASES: dict[str, tuple[str, str, int, str]] = {
                            ERR + "no drivable road inside the extract: each of the 2 drive ways "
                            "has fewer than two of its nodes in the file (3 node references "
                            "missing)\n"),
+    "roads_shorter_than_consolidation": ("dot.osm", _osm(
+        _node(1, 43.7, 7.4), _node(2, 43.7, 7.4), _way(10, [1, 2], R)), 1,
+        ERR + "no road left after merging the nodes within 8 m of each other: every road is "
+        "shorter than that; import with --consolidate-m 0\n"),
+    "invalid_location": ("polar.osm", _osm(
+        _node(1, 95.0, 7.4), *SQUARE[1:], _way(10, [1, 2, 3], R)), 0,
+        WARN + "1 road nodes with an invalid location (beyond 90 degrees of latitude or 180 of "
+        "longitude), taken as missing\n"
+        + WARN + "clipped extract: 1 node references missing from the file; 1 ways cut at the "
+        "edge, 0 dropped (fewer than two nodes inside); roads end at the extract's edge\n"
+        + WARN + "a single road: imported, but there is no other road to turn onto\n"),
     "duplicate_node_id": ("dup-node.osm", _osm(*SQUARE, SQUARE[1], _way(10, [1, 2, 3], R)), 1,
                           ERR + "node 2 appears twice: duplicate ids (two extracts "
                           "concatenated? combine them with osmium merge)\n"),
@@ -182,4 +195,4 @@ def test_imported_degenerate_maps_have_a_summary(tmp_path: Path,
     db = _written(tmp_path, case, capsys)
     assert main(["info", str(db)]) == 0
     out = capsys.readouterr().out
-    assert "junctions" in out and "missing node refs           0 (complete extract)" in out
+    assert "junctions" in out and "missing node refs" in out
