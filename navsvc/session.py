@@ -106,16 +106,19 @@ class VehicleSession:
         """The metric frame of positions (the map's; else anchored at the first GPS fix)."""
         return self.engine.frame
 
-    def add_records(self, records: Iterable[Any], first_index: int = 0) -> BatchResult:
-        """Parse and apply records in order; refuse the bad ones one by one.
+    def add_records(self, records: Iterable[Any], first_index: int = 0,
+                    skip_truth: bool = True) -> BatchResult:
+        """Parse and apply records in order; refuse the bad ones one by one. Simulator ground
+        truth (``kind: "truth"``) travels in the same files and is skipped unless
+        ``skip_truth`` is False (the service refuses it as an unknown kind).
 
         A packet the pipeline fails on (a fault of ours that validation let through) is
         refused as ``unusable`` and the result marked ``faulted``: the caller rebuilds the
         pipeline, since the failure may have left it half updated."""
         result = BatchResult()
         for index, record in enumerate(records, start=first_index):
-            if isinstance(record, dict) and record.get("kind") == "truth":
-                continue  # simulator ground truth travels in the same files
+            if skip_truth and isinstance(record, dict) and record.get("kind") == "truth":
+                continue
             try:
                 packet, canonical = parse_record(record)
                 self._check_time(packet.t)
@@ -456,7 +459,7 @@ class SessionStore:
     def _apply(self, session: LiveSession, records: list[Any]) -> BatchResult:
         """The batch applied to the session's pipeline; after a fault, the pipeline is rebuilt
         from the log and the batch's usable packets applied again."""
-        result = session.vehicle.add_records(records)
+        result = session.vehicle.add_records(records, skip_truth=False)
         while result.faulted:
             log.warning("session %s: rebuilding the pipeline after a fault", session.id)
             session.vehicle = self._load(session.logged()).vehicle

@@ -18,7 +18,7 @@ from navsvc.wire.positions import position_json
 from roadgraph import RoadGraph
 
 GPS = [{"t": float(i), "kind": "gps", "lat": 43.7384 + 1e-4 * i, "lon": 7.4246,
-        "speed_mps": 11.0} for i in range(6)]
+        "speed_mps": 11.0, "heading_deg": 0.0} for i in range(6)]
 
 
 def test_failed_log_write_rebuilds_the_session_from_the_log(

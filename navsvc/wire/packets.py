@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError
 
@@ -125,7 +125,7 @@ class NmeaPacket(_Packet):
     sentence: Annotated[str, Strict()]  # at most nmea.MAX_SENTENCE_CHARS, checked there
 
     def core(self) -> Packet:
-        return nmea.parse_sentence(self.sentence, self.t)
+        return in_json_ranges(nmea.parse_sentence(self.sentence, self.t))
 
 
 class OncorePacket(_Packet):
@@ -133,7 +133,23 @@ class OncorePacket(_Packet):
     hex: Annotated[str, Strict()]  # at most oncore.MAX_HEX_CHARS, checked there
 
     def core(self) -> GpsFix:
-        return oncore.parse_ba(self.hex, self.t)
+        return in_json_ranges(oncore.parse_ba(self.hex, self.t))
+
+
+PacketT = TypeVar("PacketT", bound=Packet)
+_FIX_RANGES = {"speed_mps": (0.0, MAX_SPEED_MPS), "alt_m": (-1000.0, 50_000.0),
+               "hdop": (0.0, 100.0), "sats": (0, 200)}  # as GpsPacket's fields
+
+
+def in_json_ranges(packet: PacketT) -> PacketT:
+    """A fix decoded from NMEA or Oncore, held to the ranges of the JSON ``gps`` packet (an
+    RMC speed of 1e308 knots was accepted, and turned the filter's state to NaN)."""
+    for name, (low, high) in _FIX_RANGES.items():
+        value = getattr(packet, name, None)
+        if value is not None and not low <= value <= high:
+            raise PacketError(RejectReason.OUT_OF_RANGE,
+                              f"{name}={_show(value)} (must be from {low:g} to {high:g})")
+    return packet
 
 
 MODELS: dict[str, type[_Packet]] = {

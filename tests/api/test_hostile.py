@@ -19,7 +19,7 @@ from tests.api.server import Server, free_port, start_server
 
 KEY = "s3cret-key-for-the-log-test"
 GPS = [{"t": float(i), "kind": "gps", "lat": 43.7384 + 1e-4 * i, "lon": 7.4246,
-        "speed_mps": 11.0} for i in range(6)]
+        "speed_mps": 11.0, "heading_deg": 0.0} for i in range(6)]
 
 
 @pytest.fixture()

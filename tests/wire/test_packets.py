@@ -239,3 +239,19 @@ def test_parse_record_of_every_kind_round_trips() -> None:
             continue
         packet, record = parse_record({**obj, "unknown": [[{"x": 1}]]})
         assert record == obj and parse(json.loads(json.dumps(record))) == packet
+
+
+@pytest.mark.parametrize("sentence", [
+    "$GPVTG,054.7,T,034.4,M,1e308,N,010.2,K",  # found by the WebSocket fuzzer
+    "$GPRMC,123519,A,4807.038,N,01131.000,E,1000000,084.4,230394,003.1,W",
+    "$GPGGA,123519,4807.038,N,01131.000,E,1,08,900.0,545.4,M,46.9,M,,",  # HDOP 900
+    "$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,99999.0,M,46.9,M,,",  # 100 km up
+])
+def test_nmea_fixes_are_held_to_the_json_packets_ranges(sentence: str) -> None:
+    body = sentence[1:]
+    checksum = 0
+    for ch in body:
+        checksum ^= ord(ch)
+    with pytest.raises(PacketError) as info:
+        parse({"t": 1.0, "kind": "nmea", "sentence": f"{sentence}*{checksum:02X}"})
+    assert info.value.reason.code == "out_of_range"
