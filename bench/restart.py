@@ -121,6 +121,7 @@ def copy_sessions(log_path: Path, originals: list[dict[str, Any]], sessions: int
     db.execute(f"UPDATE sessions SET closed = 1 WHERE id IN ({marks})",
                [o["id"] for o in originals])
     db.execute("COMMIT")
+    db.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # as a server's own checkpointer leaves it
     db.close()
     return expected
 
@@ -147,7 +148,12 @@ def time_start(db: Path, log: Path, expected: list[dict[str, Any]]) -> dict[str,
     latencies, wrong = [], 0
     for e in expected:
         t = time.monotonic()
-        info = client.get(f"/sessions/{e['id']}").json()
+        try:
+            info = client.get(f"/sessions/{e['id']}").json()
+        except httpx.TimeoutException:
+            process.kill()
+            raise RuntimeError(f"GET /sessions/{e['id']} timed out; server log:\n"
+                               f"{log.read_text()[-3000:]}") from None
         latencies.append(time.monotonic() - t)
         wrong += info["packets_accepted"] != e["packets"] or info["position"] != e["position"]
     all_sessions = time.monotonic() - start

@@ -229,8 +229,10 @@ class TripLog:
     def batches_after(self, session_id: str, rowid: int = 0) -> Iterator[LoggedBatch]:
         """A session's batches logged after row ``rowid``, in the order they were applied."""
         cursor = self._db.execute(
-            "SELECT rowid, records, rejected FROM batches WHERE session_id = ? AND rowid > ? "
-            "ORDER BY rowid", (session_id, rowid))
+            # the index, named: for "rowid > ? ORDER BY rowid" SQLite would rather walk the
+            # table in rowid order, every other session's rows too (seconds in a big log)
+            "SELECT rowid, records, rejected FROM batches INDEXED BY batches_of_session "
+            "WHERE session_id = ? AND rowid > ? ORDER BY rowid", (session_id, rowid))
         for row_id, records, rejected in cursor:
             yield LoggedBatch(row_id, json.loads(records), rejected)
 
@@ -242,8 +244,9 @@ class TripLog:
     def last_replies(self, session_id: str, limit: int) -> list[LoggedReply]:
         """The replies to the session's last ``limit`` numbered batches, oldest first."""
         rows = self._db.execute(
-            "SELECT client_seq, reply FROM batches WHERE session_id = ? AND client_seq IS NOT "
-            "NULL ORDER BY rowid DESC LIMIT ?", (session_id, limit)).fetchall()
+            "SELECT client_seq, reply FROM batches INDEXED BY batches_of_session "
+            "WHERE session_id = ? AND client_seq IS NOT NULL ORDER BY rowid DESC LIMIT ?",
+            (session_id, limit)).fetchall()
         return [LoggedReply(seq, json.loads(reply)) for seq, reply in reversed(rows)]
 
     def close_session(self, session_id: str) -> None:
