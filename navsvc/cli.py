@@ -25,6 +25,8 @@ from navsvc.fusion import GpsMode, SensorConfig
 from navsvc.matching.hmm import HmmConfig
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import Evaluation, evaluate
+from navsvc.sim.gnss_replay import GnssErrorRecording, parse_urbannav
+from navsvc.sim.harsh import harsh_urban_spec
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.wire.jsonl import iter_lines, read_records, write_records
 from navsvc.wire.positions import position_json
@@ -35,6 +37,7 @@ from roadgraph import RoadGraph, RoadGraphError
 log = logging.getLogger("navsvc")
 
 SENSOR_CHOICES = [c.value for c in SensorConfig]
+URBANNAV_DIR = Path(__file__).resolve().parent.parent / "tests" / "data" / "urbannav"
 FUSION_CHOICES = [m.value for m in GpsMode]
 
 
@@ -87,6 +90,18 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--sensors", choices=[*SENSOR_KINDS], default="all",
                      help="which sensors the vehicle has: a sensor configuration, or all of "
                      "them (default all)")
+    sim.add_argument("--profile", choices=["default", "harsh-urban"], default="default",
+                     help="sensor error levels: default (the fixed levels of SensorErrors) or "
+                     "harsh-urban (levels drawn from the seed: GPS correlated error up to 8 m, "
+                     "NLOS runs of 20-80 m for 10-60 s, course noise growing as speed falls, "
+                     "fixes at 1-10 Hz and 0.1-0.2 s late, gyro bias up to 1 deg/s and scale "
+                     "error up to 3 %%, odometer scale error up to 5 %%, speed-only odometers, "
+                     "a standstill at the start); default: default")
+    sim.add_argument("--gps-error", choices=["synthetic", "urbannav"], default="synthetic",
+                     help="GPS position error: synthetic (the profile's model) or urbannav "
+                     "(real urban-canyon error of a receiver in Hong Kong, fix minus truth, "
+                     "replayed from a seed-chosen second, its gaps as outages; "
+                     "tests/data/urbannav); default: synthetic")
     sim.add_argument("--json", action="store_true", help="print a summary as JSON")
 
     run = sub.add_parser("run", help="replay a drive through fusion and matching",
@@ -195,7 +210,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     graph = RoadGraph.open(args.map)
     spec = DriveSpec(duration_s=args.duration, seed=args.seed, outages=tuple(args.outage),
-                     sensors=SENSOR_KINDS[args.sensors], full_imu=args.sensors == "strapdown")
+                     sensors=SENSOR_KINDS[args.sensors], full_imu=args.sensors == "strapdown",
+                     gps_error_replay=_urbannav() if args.gps_error == "urbannav" else None)
+    if args.profile == "harsh-urban":
+        spec = harsh_urban_spec(spec)
     records = simulate_drive(graph, spec)
     count = write_records(args.output, records)
     kinds = Counter(r["kind"] for r in records)
@@ -205,6 +223,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     print(json.dumps(summary) if args.json else
           f"{args.output}: {count} records ({', '.join(f'{k} {n}' for k, n in kinds.items())})")
     return 0
+
+
+def _urbannav() -> GnssErrorRecording:
+    spp, truth = URBANNAV_DIR / "spp_fixes.csv", URBANNAV_DIR / "groundTruth_TST.csv"
+    try:
+        return parse_urbannav(spp.read_text(), truth.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{exc.filename}: cannot read the UrbanNav recording "
+                          f"({exc.strerror})") from None
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -329,7 +356,8 @@ def _cmd_send(args: argparse.Namespace) -> int:
         write_records(args.output, result.positions)
     summary = {"session_id": session_id, "packets": len(packets), "accepted": result.accepted,
                "rejected": len(result.rejected), "positions": len(result.positions),
-               "unreadable_lines": len(bad), "output": str(args.output) if args.output else None}
+               "unreadable_lines": len(bad), "reconnects": result.reconnects,
+               "output": str(args.output) if args.output else None}
     print(json.dumps(summary) if args.json else
           f"session {session_id}: {result.accepted} of {len(packets)} packets accepted, "
           f"{len(result.positions)} positions" + (f" written to {args.output}" if args.output

@@ -7,7 +7,9 @@
     ├── ConfigError            impossible parameters (refused in constructors)
     ├── TraceError             a trace file or request that cannot be matched
     ├── SessionNotFound        no such session, or not visible with this API key
-    └── LimitExceeded          a configured limit (sessions per key, ...) would be passed
+    ├── BatchAlreadyApplied    a resent numbered batch whose reply is no longer kept
+    ├── LimitExceeded          a configured limit (sessions per key, ...) would be passed
+    └── TripLogInUse           another server has the trip log open (navsvc.triplog)
 
 A rejected packet never changes any state; the caller reports ``Rejection(index, reason,
 detail)`` and carries on with the next packet.
@@ -31,6 +33,7 @@ class RejectReason(enum.Enum):
     BAD_CHECKSUM = ("bad_checksum", "sentence or message checksum does not match", 422)
     UNSUPPORTED_SENTENCE = ("unsupported_sentence", "NMEA sentence type not supported", 422)
     NOT_CONFIGURED = ("not_configured", "sensor not used by this session's configuration", 422)
+    UNUSABLE = ("unusable", "the filter could not use this packet (it was not applied)", 422)
 
     def __init__(self, code: str, message: str, http_status: int) -> None:
         self.code = code
@@ -76,5 +79,13 @@ class SessionNotFound(NavsvcError):
     """No session with this id is visible to the caller."""
 
 
+class BatchAlreadyApplied(NavsvcError):
+    """A numbered batch at or below the session's last number, too old to answer again."""
+
+
 class LimitExceeded(NavsvcError):
     """A request would pass a configured limit."""
+
+
+class TripLogInUse(NavsvcError):
+    """Another server has this trip log open."""

@@ -13,16 +13,22 @@ restarted server rebuild its open sessions by replaying them.
 from __future__ import annotations
 
 import hashlib
+import io
 import logging
 import math
+import pickle
 import secrets
 import sqlite3
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
 from typing import Any
 
 from navsvc.errors import (
+    BatchAlreadyApplied,
     ConfigError,
     LimitExceeded,
     PacketError,
@@ -40,9 +46,10 @@ from navsvc.fusion import (
     StrapdownOptions,
 )
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
-from navsvc.triplog import LoggedSession, TripLog
+from navsvc.triplog import Checkpoint, LoggedSession, TripLog
 from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState
-from navsvc.wire.packets import parse
+from navsvc.wire.packets import parse_record
+from navsvc.wire.positions import position_json
 from roadgraph import LocalFrame, RoadGraph
 from roadgraph.geometry import wrap_angle_rad
 
@@ -50,6 +57,7 @@ log = logging.getLogger(__name__)
 
 
 MAP_MARGIN_DEG = 0.5  # GPS fixes farther than this outside the map's bbox are refused
+MAX_TIME_JUMP_S = 3600.0  # a packet this far ahead of the vehicle's latest is refused
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,9 @@ class BatchResult:
     positions: list[MatchedPosition] = field(default_factory=list)
     rejections: list[Rejection] = field(default_factory=list)
     accepted: int = 0
+    records: list[dict[str, Any]] = field(default_factory=list)  # the accepted, as validated
+    indices: list[int] = field(default_factory=list)  # of each of those in the batch
+    faulted: bool = False  # the pipeline raised on a packet: its state may be torn
 
 
 class VehicleSession:
@@ -97,26 +108,52 @@ class VehicleSession:
         """The metric frame of positions (the map's; else anchored at the first GPS fix)."""
         return self.engine.frame
 
-    def add_records(self, records: Iterable[Any], first_index: int = 0) -> BatchResult:
-        """Parse and apply records in order; refuse the bad ones one by one."""
+    def add_records(self, records: Iterable[Any], first_index: int = 0,
+                    skip_truth: bool = True) -> BatchResult:
+        """Parse and apply records in order; refuse the bad ones one by one. Simulator ground
+        truth (``kind: "truth"``) travels in the same files and is skipped unless
+        ``skip_truth`` is False (the service refuses it as an unknown kind).
+
+        A packet the pipeline fails on (a fault of ours that validation let through) is
+        refused as ``unusable`` and the result marked ``faulted``: the caller rebuilds the
+        pipeline, since the failure may have left it half updated."""
         result = BatchResult()
         for index, record in enumerate(records, start=first_index):
-            if isinstance(record, dict) and record.get("kind") == "truth":
-                continue  # simulator ground truth travels in the same files
+            if skip_truth and isinstance(record, dict) and record.get("kind") == "truth":
+                continue
             try:
-                packet = parse(record)
+                packet, canonical = parse_record(record)
+                self._check_time(packet.t)
                 if isinstance(packet, GpsFix):
                     self._check_on_map(packet)
                 estimates = self.engine.add(packet)
+                positions = [self._place(e) for e in estimates]
+                if not estimates:
+                    self._step_matcher()
             except PacketError as exc:
                 result.rejections.append(Rejection(index, exc.reason, exc.detail))
                 continue
+            except Exception as exc:  # noqa: BLE001 (one packet must not fail the batch)
+                log.exception("packet %d could not be applied: %r", index, record)
+                result.rejections.append(Rejection(index, RejectReason.UNUSABLE,
+                                                   f"{type(exc).__name__}: {exc}"))
+                result.faulted = True
+                continue
             result.accepted += 1
-            if estimates:
-                result.positions += [self._place(e) for e in estimates]
-            else:
-                self._step_matcher()
+            result.records.append(canonical)
+            result.indices.append(index)
+            result.positions += positions
         return result
+
+    def _check_time(self, t: float) -> None:
+        """Refuse a jump far into the future: every later packet would be ``time_backwards``
+        (a clock in milliseconds, or a stray timestamp, would brick the session)."""
+        latest = self.engine.t
+        if latest is not None and t > latest + MAX_TIME_JUMP_S:
+            raise PacketError(RejectReason.OUT_OF_RANGE,
+                              f"t={t!r} is {t - latest:.0f} s after the vehicle's latest packet "
+                              f"(t={latest!r}); the limit is {MAX_TIME_JUMP_S:.0f} s (start a "
+                              "new session after a longer pause)")
 
     def _check_on_map(self, fix: GpsFix) -> None:
         """Refuse a fix far outside the map: the vehicle cannot be matched there, and one
@@ -206,7 +243,84 @@ def _triple(values: Any) -> tuple[float, float, float]:
 
 def owner_of(api_key: str | None) -> str:
     """What the store keeps of an API key: its SHA-256 ('' for the open service)."""
-    return hashlib.sha256(api_key.encode()).hexdigest() if api_key else ""
+    return hashlib.sha256(key_bytes(api_key)).hexdigest() if api_key else ""
+
+
+def key_bytes(api_key: str | None) -> bytes:
+    """An API key as bytes, whatever characters it holds (a lone surrogate included)."""
+    return (api_key or "").encode("utf-8", "surrogatepass")
+
+
+def batch_reply(result: BatchResult, frame: LocalFrame) -> dict[str, Any]:
+    """The JSON of a :class:`navsvc.api.models.BatchReply`; a plain dict, since the WebSocket
+    sends it as it is, and building and dumping the model for each message cost more than the
+    rest of its reply."""
+    return {"accepted": result.accepted, "rejected": [r.to_json() for r in result.rejections],
+            "positions": [position_json(p, frame) for p in result.positions]}
+
+
+# --- checkpoints ------------------------------------------------------------------------
+# A checkpoint after every 500 packets (a restart then replays at most that many, ~25 ms of
+# work), but not more often than every 2 s (a vehicle sending 1,000 packets a second would
+# otherwise pickle its pipeline twice a second).
+CHECKPOINT_EVERY_PACKETS = 500
+CHECKPOINT_MIN_INTERVAL_S = 2.0
+
+
+PICKLED_SOURCES = ("navsvc/fusion", "navsvc/matching", "navsvc/session.py", "navsvc/types.py",
+                   "navsvc/errors.py", "roadgraph")  # the code of what a checkpoint holds
+
+
+@cache
+def code_id() -> str:
+    """A hash of the source of the classes a checkpoint holds: a checkpoint is only loaded by
+    the code that wrote it (pickled objects of changed classes would load, and be wrong)."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for name in PICKLED_SOURCES:
+        path = root / name
+        for source in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            digest.update(source.relative_to(root).as_posix().encode())
+            digest.update(source.read_bytes())
+    return digest.hexdigest()
+
+
+class _Pickler(pickle.Pickler):
+    """Pickles a vehicle's pipeline without the road graph (shared, read-only, reopened)."""
+
+    def __init__(self, file: io.BytesIO, graph: RoadGraph) -> None:
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self._shared = {id(graph): "graph", id(graph.frame): "frame"}
+
+    def persistent_id(self, obj: Any) -> str | None:
+        return self._shared.get(id(obj))
+
+
+class _Unpickler(pickle.Unpickler):
+    def __init__(self, file: io.BytesIO, graph: RoadGraph) -> None:
+        super().__init__(file)
+        self._shared = {"graph": graph, "frame": graph.frame}
+
+    def persistent_load(self, pid: Any) -> Any:
+        return self._shared[pid]
+
+
+def dump_vehicle(vehicle: VehicleSession, graph: RoadGraph) -> bytes:
+    """A vehicle's pipeline (engine and matcher state) as bytes, for the trip log.
+
+    pickle: the trip log is the server's own file, never a client's input."""
+    buffer = io.BytesIO()
+    _Pickler(buffer, graph).dump((code_id(), vehicle))
+    return buffer.getvalue()
+
+
+def load_vehicle(data: bytes, graph: RoadGraph) -> VehicleSession | None:
+    """The pipeline :func:`dump_vehicle` saved, or None when other code wrote it."""
+    written_by, vehicle = _Unpickler(io.BytesIO(data), graph).load()
+    return vehicle if written_by == code_id() and isinstance(vehicle, VehicleSession) else None
+
+
+REPLIES_KEPT = 64  # replies to numbered batches kept per session, to answer resends
 
 
 @dataclass
@@ -222,10 +336,35 @@ class LiveSession:
     packets: int = 0  # accepted so far (the next trip-log sequence number)
     rejected: int = 0
     last_seen: float = 0.0  # store clock
+    last_batch_rowid: int = 0  # the trip-log row of the last batch applied
+    checkpoint_packets: int = 0  # packets + rejected at the last checkpoint
+    checkpoint_clock: float = 0.0  # store clock at the last checkpoint
+    replies: OrderedDict[int, dict[str, Any]] = field(default_factory=OrderedDict)
+
+    @property
+    def last_client_seq(self) -> int | None:
+        return next(reversed(self.replies)) if self.replies else None
+
+    def logged(self) -> LoggedSession:
+        return LoggedSession(self.id, self.owner, self.vehicle_id, self.options,
+                             self.created_unix)
+
+
+@dataclass(frozen=True)
+class Ingested:
+    """A batch's reply, and what it did (None: a resend answered from memory)."""
+
+    reply: dict[str, Any]
+    result: BatchResult | None
 
 
 class SessionStore:
-    """The live sessions, backed by a trip log."""
+    """The live sessions, backed by a trip log.
+
+    After a restart the open sessions of the log are known at once but rebuilt as they are
+    needed (:meth:`reopen`): a session a request names is rebuilt then, the rest one at a
+    time by :meth:`restore_next` (the API calls it between requests), so the server answers
+    from its first second whatever the number of sessions."""
 
     def __init__(self, graph: RoadGraph, triplog: TripLog, *, idle_timeout_s: float = 3600.0,
                  max_sessions_per_owner: int = 10_000,
@@ -236,64 +375,125 @@ class SessionStore:
         self.max_sessions_per_owner = max_sessions_per_owner
         self._clock = clock
         self._sessions: dict[str, LiveSession] = {}
+        self._pending: dict[str, LoggedSession] = {}  # open in the log, not rebuilt yet
 
     def __len__(self) -> int:
-        return len(self._sessions)
+        return len(self._sessions) + len(self._pending)
 
     def create(self, owner: str, vehicle_id: str, options: dict[str, Any]) -> LiveSession:
         """Start a session (options as in :func:`config_from_options`)."""
         config = config_from_options(options)
-        owned = sum(1 for s in self._sessions.values() if s.owner == owner)
+        owned = sum(s.owner == owner for s in self._sessions.values()) + \
+            sum(p.owner == owner for p in self._pending.values())
         if owned >= self.max_sessions_per_owner:
             raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
                                 f"{self.max_sessions_per_owner}")
+        now = self._clock()
         session = LiveSession(id=secrets.token_hex(8), owner=owner, vehicle_id=vehicle_id,
                               options=options, created_unix=time.time(),
-                              vehicle=VehicleSession(config, self.graph),
-                              last_seen=self._clock())
-        self.triplog.create_session(LoggedSession(session.id, owner, vehicle_id, options,
-                                                  session.created_unix))
+                              vehicle=VehicleSession(config, self.graph), last_seen=now,
+                              checkpoint_clock=now)
+        self.triplog.create_session(session.logged())
         self._sessions[session.id] = session
         log.info("session %s created for vehicle %r (%s)", session.id, vehicle_id, options)
         return session
 
     def get(self, session_id: str, owner: str) -> LiveSession:
+        pending = self._pending.get(session_id)
+        if pending is not None and pending.owner == owner:
+            self._restore(self._pending.pop(session_id))
         session = self._sessions.get(session_id)
         if session is None or session.owner != owner:
             raise SessionNotFound(f"no session {session_id!r}")
         return session
 
     def sessions(self, owner: str) -> list[LiveSession]:
+        for logged in [p for p in self._pending.values() if p.owner == owner]:
+            self._restore(self._pending.pop(logged.id))
         return [s for s in self._sessions.values() if s.owner == owner]
 
     def ingest(self, session: LiveSession, records: list[Any],
-               records_json: str | None = None) -> BatchResult:
-        """Apply a batch, then log its accepted packets; returns once they are on disk.
+               client_seq: int | None = None) -> Ingested:
+        """Apply a batch and log it as one unit; returns once it is on disk.
 
-        ``records_json``, the batch as the JSON array it arrived in, is logged as it is when
-        every packet is accepted (the common case), which saves encoding it again.
+        ``client_seq``, the client's number for the batch (increasing per session), makes a
+        resend safe: a batch numbered at or below the last one is not applied again but
+        answered with its original reply (``"duplicate": true``), or refused with
+        :class:`BatchAlreadyApplied` when that reply is no longer kept.
 
         If the log cannot be written the session is rebuilt from its log, so that memory
         never holds packets the log lacks, and the error propagates (nothing acknowledged).
         """
-        result = session.vehicle.add_records(records)
-        refused = {r.index for r in result.rejections}
-        accepted = [r for i, r in enumerate(records) if i not in refused
-                    and not (isinstance(r, dict) and r.get("kind") == "truth")]
+        last = session.last_client_seq
+        if client_seq is not None and last is not None and client_seq <= last:
+            kept = session.replies.get(client_seq)
+            if kept is None:
+                raise BatchAlreadyApplied(
+                    f"batch {client_seq} is not after the session's last numbered batch "
+                    f"({last}): either it was applied already and its reply is no longer kept "
+                    f"(the last {REPLIES_KEPT} are), or the numbers went backwards")
+            return Ingested({**kept, "duplicate": True}, None)
+        result = self._apply(session, records)
+        reply = batch_reply(result, self.graph.frame)
         try:
-            self.triplog.append(session.id, session.packets, accepted,
-                                records_json if len(accepted) == len(records) else None)
+            session.last_batch_rowid = self.triplog.append(
+                session.id, session.packets, result.records, len(result.rejections),
+                client_seq, reply if client_seq is not None else None)
         except sqlite3.Error:
             log.exception("session %s: trip log write failed; rebuilding from the log",
                           session.id)
-            self._sessions[session.id] = self._replay(
-                LoggedSession(session.id, session.owner, session.vehicle_id, session.options,
-                              session.created_unix), session.rejected)
+            self._sessions[session.id] = self._load(session.logged())
             raise
-        session.packets += len(accepted)
+        session.packets += result.accepted
         session.rejected += len(result.rejections)
         session.last_seen = self._clock()
+        if client_seq is not None:
+            session.replies[client_seq] = reply
+            if len(session.replies) > REPLIES_KEPT:
+                session.replies.popitem(last=False)
+        self._checkpoint_if_due(session)
+        return Ingested(reply, result)
+
+    def _apply(self, session: LiveSession, records: list[Any]) -> BatchResult:
+        """The batch applied to the session's pipeline; after a fault, the pipeline is rebuilt
+        from the log and the batch's usable packets applied again."""
+        result = session.vehicle.add_records(records, skip_truth=False)
+        while result.faulted:
+            log.warning("session %s: rebuilding the pipeline after a fault", session.id)
+            session.vehicle = self._load(session.logged()).vehicle
+            again = session.vehicle.add_records(result.records)
+            refused = [Rejection(result.indices[r.index], r.reason, r.detail)
+                       for r in again.rejections]
+            result = BatchResult(
+                positions=again.positions, accepted=again.accepted, faulted=again.faulted,
+                rejections=sorted(result.rejections + refused, key=lambda r: r.index),
+                records=again.records, indices=[result.indices[i] for i in again.indices])
         return result
+
+    def _checkpoint_if_due(self, session: LiveSession) -> None:
+        if session.packets + session.rejected - session.checkpoint_packets >= \
+                CHECKPOINT_EVERY_PACKETS and \
+                self._clock() - session.checkpoint_clock >= CHECKPOINT_MIN_INTERVAL_S:
+            self.checkpoint(session)
+
+    def checkpoint(self, session: LiveSession) -> None:
+        """Save the session's pipeline, so that a restart replays only what follows. A failure
+        costs only time at the next restart: the log has every batch."""
+        try:
+            self.triplog.save_checkpoint(session.id, Checkpoint(
+                session.last_batch_rowid, session.packets, session.rejected,
+                dump_vehicle(session.vehicle, self.graph)))
+        except (sqlite3.Error, pickle.PicklingError) as exc:
+            log.warning("session %s: checkpoint not saved: %s", session.id, exc)
+            return
+        session.checkpoint_packets = session.packets + session.rejected
+        session.checkpoint_clock = self._clock()
+
+    def checkpoint_all(self) -> None:
+        """Checkpoint every session with packets since its last (at shutdown)."""
+        for session in self._sessions.values():
+            if session.packets + session.rejected != session.checkpoint_packets:
+                self.checkpoint(session)
 
     def delete(self, session_id: str, owner: str) -> None:
         self.get(session_id, owner)
@@ -308,25 +508,64 @@ class SessionStore:
             self._close(session_id)
         return idle
 
+    def reopen(self) -> int:
+        """Take the open sessions of the trip log (after a restart), to be rebuilt as they
+        are needed; return how many."""
+        self._pending = {s.id: s for s in self.triplog.open_sessions()
+                         if s.id not in self._sessions}
+        return len(self._pending)
+
+    def restore_next(self) -> bool:
+        """Rebuild one session taken by :meth:`reopen`; False when none is left."""
+        if not self._pending:
+            return False
+        self._restore(self._pending.pop(next(iter(self._pending))))
+        return True
+
     def restore(self) -> int:
-        """Rebuild every open session of the trip log (after a restart); return how many."""
-        for logged in self.triplog.open_sessions():
-            session = self._replay(logged)
-            self._sessions[logged.id] = session
-            log.info("session %s restored: %d packets replayed", logged.id, session.packets)
+        """Rebuild every open session of the trip log now; return how many there are."""
+        self.reopen()
+        while self.restore_next():
+            pass
         return len(self._sessions)
 
-    def _replay(self, logged: LoggedSession, rejected: int = 0) -> LiveSession:
-        """A session rebuilt by running its logged packets through a fresh pipeline."""
-        vehicle = VehicleSession(config_from_options(logged.options), self.graph)
-        count = 0
-        for record in self.triplog.packets(logged.id):
-            vehicle.add_records([record])
-            count += 1
-        return LiveSession(id=logged.id, owner=logged.owner, vehicle_id=logged.vehicle_id,
-                           options=logged.options, created_unix=logged.created_unix,
-                           vehicle=vehicle, packets=count, rejected=rejected,
-                           last_seen=self._clock())
+    def _restore(self, logged: LoggedSession) -> None:
+        session = self._load(logged)
+        self._sessions[logged.id] = session
+        log.debug("session %s restored: %d packets", logged.id, session.packets)
+
+    def _load(self, logged: LoggedSession) -> LiveSession:
+        """A session rebuilt from the trip log: its last checkpoint, then the batches logged
+        after it (all of them when there is no usable checkpoint)."""
+        checkpoint = self.triplog.checkpoint(logged.id)
+        vehicle = None
+        if checkpoint is not None:
+            try:
+                vehicle = load_vehicle(checkpoint.state, self.graph)
+            except Exception as exc:  # noqa: BLE001 (an unreadable checkpoint: replay all)
+                log.warning("session %s: checkpoint unreadable (%s); replaying its log",
+                            logged.id, exc)
+        if vehicle is None or checkpoint is None:
+            vehicle = VehicleSession(config_from_options(logged.options), self.graph)
+            checkpoint = Checkpoint(0, 0, 0, b"")
+        now = self._clock()
+        session = LiveSession(id=logged.id, owner=logged.owner, vehicle_id=logged.vehicle_id,
+                              options=logged.options, created_unix=logged.created_unix,
+                              vehicle=vehicle, packets=checkpoint.packets,
+                              rejected=checkpoint.rejected, last_seen=now,
+                              last_batch_rowid=checkpoint.batch_rowid, checkpoint_clock=now)
+        for batch in self.triplog.batches_after(logged.id, checkpoint.batch_rowid):
+            replayed = vehicle.add_records(batch.records)
+            if replayed.faulted:  # cannot happen to validated packets; say so if it does
+                log.error("session %s: logged batch %d failed to replay", logged.id,
+                          batch.rowid)
+            session.packets += len(batch.records)
+            session.rejected += batch.rejected
+            session.last_batch_rowid = batch.rowid
+        session.checkpoint_packets = checkpoint.packets + checkpoint.rejected
+        for logged_reply in self.triplog.last_replies(logged.id, REPLIES_KEPT):
+            session.replies[logged_reply.client_seq] = logged_reply.reply
+        return session
 
     def _close(self, session_id: str) -> None:
         self.triplog.close_session(session_id)

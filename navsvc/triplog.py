@@ -1,31 +1,37 @@
 """The trip log: every accepted packet of every live session, on disk before it is acknowledged.
 
 An SQLite file beside the road-graph database (``maps/monaco.db`` → ``maps/monaco.trips.db``)
-in WAL mode. A batch's accepted packets are written in one transaction and committed before the
-reply leaves, so a server killed at any moment has every acknowledged packet on disk; on restart
-:class:`navsvc.session.SessionStore` replays the open sessions' logs through fresh sessions.
-With ``synchronous=NORMAL`` (the default here) a commit survives the process crashing; pass
-``sync="full"`` to also survive the machine losing power, at an fsync per batch.
+in WAL mode. A batch's accepted packets (in the form they were validated in, which is the form
+replayed) are written in one statement, committed before the reply leaves, so a server killed
+at any moment has every acknowledged packet on disk. Now and then a session's whole pipeline is
+saved as a *checkpoint*; on restart :class:`navsvc.session.SessionStore` loads each open
+session's checkpoint and replays only the batches logged after it. With ``synchronous=NORMAL``
+(the default here) a commit survives the process crashing; pass ``sync="full"`` to also
+survive the machine losing power, at an fsync per batch.
 
-Only the API's event loop uses a TripLog, so one connection serves it. Checkpoints (copying
-the WAL into the database file, with an fsync) run every second in a thread of their own, on
-their own connection, instead of inside whichever commit crossed SQLite's 1,000-page mark:
-there they stalled the event loop for 20 ms every 0.6 s with 1,000 GPS-only sessions. Once
-few pages are left to copy, a short blocking pass lets the WAL start over instead of growing
-under load. An ended session is only marked; :meth:`TripLog.drop_closed` deletes its batches
-later, a chunk at a time.
+Only the API's event loop uses a TripLog, so one connection serves it. WAL checkpoints
+(copying the WAL into the database file, with an fsync) run every second in a thread of their
+own, on their own connection, instead of inside whichever commit crossed SQLite's 1,000-page
+mark: there they stalled the event loop for 20 ms every 0.6 s with 1,000 GPS-only sessions.
+Once few pages are left to copy, a short blocking pass lets the WAL start over instead of
+growing under load. An ended session is only marked; :meth:`TripLog.drop_closed` deletes its
+batches later, a chunk at a time.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
+import os
 import sqlite3
 import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
+
+from navsvc.errors import TripLogInUse
 
 log = logging.getLogger(__name__)
 
@@ -43,27 +49,39 @@ CREATE TABLE IF NOT EXISTS sessions (
     created_unix REAL NOT NULL,
     closed INTEGER NOT NULL DEFAULT 0
 );
-CREATE TABLE IF NOT EXISTS batches (
+CREATE TABLE IF NOT EXISTS batches (  -- one row a batch, in the order they were applied
     session_id TEXT NOT NULL REFERENCES sessions(id),
-    seq INTEGER NOT NULL,         -- number of the batch's first packet (0, 1, 2 ... per session,
-                                  -- in the order they were applied)
-    count INTEGER NOT NULL,       -- packets in the batch
-    records TEXT NOT NULL,        -- the accepted packets as received, a JSON array
-    PRIMARY KEY (session_id, seq)
+    seq INTEGER NOT NULL,         -- packets the session had accepted before this batch
+    count INTEGER NOT NULL,       -- packets accepted in the batch
+    records TEXT NOT NULL,        -- the accepted packets as validated, a JSON array
+    rejected INTEGER NOT NULL DEFAULT 0,  -- packets of the batch refused
+    client_seq INTEGER,           -- the client's batch number, when it sent one
+    reply TEXT                    -- the reply it got (JSON), kept to answer a resend
+);
+CREATE INDEX IF NOT EXISTS batches_of_session ON batches (session_id);
+CREATE TABLE IF NOT EXISTS checkpoints (  -- a session's pipeline, saved now and then
+    session_id TEXT PRIMARY KEY REFERENCES sessions(id),
+    batch_rowid INTEGER NOT NULL, -- the last batch it has applied
+    packets INTEGER NOT NULL,     -- accepted and rejected packets counted up to it
+    rejected INTEGER NOT NULL,
+    state BLOB NOT NULL           -- navsvc.session.dump_vehicle
 );
 """
 
-# Older layouts are moved over when opened: one row a packet (``packets``), and batches in a
+# Older layouts are moved over when opened: one row a packet (``packets``), batches in a
 # WITHOUT ROWID table (its rows of a kilobyte or more spilled to overflow pages, and each
-# commit rewrote five pages).
+# commit rewrote five pages), and batches keyed by (session, first packet), which could not
+# hold a batch whose packets were all refused.
+_OLD_BATCHES = "INSERT INTO batches (session_id, seq, count, records) SELECT session_id, " \
+    "seq, count, records FROM {table} ORDER BY session_id, seq; DROP TABLE {table};"
 _MIGRATIONS = {
     "packets": """
         INSERT INTO batches (session_id, seq, count, records)
-            SELECT session_id, seq, 1, '[' || record || ']' FROM packets;
+            SELECT session_id, seq, 1, '[' || record || ']' FROM packets
+            ORDER BY session_id, seq;
         DROP TABLE packets;""",
-    "batches_without_rowid": """
-        INSERT INTO batches SELECT * FROM batches_without_rowid;
-        DROP TABLE batches_without_rowid;""",
+    "batches_without_rowid": _OLD_BATCHES.format(table="batches_without_rowid"),
+    "batches_by_seq": _OLD_BATCHES.format(table="batches_by_seq"),
 }
 
 
@@ -81,21 +99,50 @@ class LoggedSession:
     created_unix: float
 
 
+@dataclass(frozen=True)
+class Checkpoint:
+    """A session's saved pipeline and what it had counted when it was saved."""
+
+    batch_rowid: int
+    packets: int
+    rejected: int
+    state: bytes
+
+
+@dataclass(frozen=True)
+class LoggedBatch:
+    """One logged batch, as replayed after a checkpoint."""
+
+    rowid: int
+    records: list[Any]
+    rejected: int
+
+
+@dataclass(frozen=True)
+class LoggedReply:
+    """The reply to a batch the client numbered."""
+
+    client_seq: int
+    reply: dict[str, Any]
+
+
 class TripLog:
-    """Append-only log of sessions and their accepted packets."""
+    """Append-only log of sessions and their accepted packets, with checkpoints.
+
+    One server at a time: the log is locked (``<path>.lock``) while it is open, and a second
+    server refuses to start on it instead of reading the first one's live sessions.
+    """
 
     def __init__(self, path: Path, sync: str = "normal", checkpoint_every_s: float = 1.0) -> None:
         if sync not in ("normal", "full"):
             raise ValueError(f"sync must be 'normal' or 'full', got {sync!r}")
         self.path = path
+        self._lock = _lock(path)
         self._db = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(f"PRAGMA synchronous={sync.upper()}")
         self._db.execute("PRAGMA wal_autocheckpoint=0")  # the checkpointer thread does it
-        batches = self._db.execute("SELECT sql FROM sqlite_master WHERE name = 'batches'"
-                                   ).fetchone()
-        if batches is not None and "WITHOUT ROWID" in batches[0].upper():
-            self._db.execute("ALTER TABLE batches RENAME TO batches_without_rowid")
+        self._move_old_batches_aside()
         self._db.executescript(SCHEMA)
         for table, script in _MIGRATIONS.items():
             if self._db.execute("SELECT 1 FROM sqlite_master WHERE name = ?", (table,)
@@ -105,6 +152,16 @@ class TripLog:
         self._checkpointer = threading.Thread(target=self._checkpoint, args=(checkpoint_every_s,),
                                               name=f"checkpoint {path.name}", daemon=True)
         self._checkpointer.start()
+
+    def _move_old_batches_aside(self) -> None:
+        """Rename a batches table of an older layout, for its migration to copy."""
+        row = self._db.execute("SELECT sql FROM sqlite_master WHERE name = 'batches'").fetchone()
+        if row is None:
+            return
+        if "WITHOUT ROWID" in row[0].upper():
+            self._db.execute("ALTER TABLE batches RENAME TO batches_without_rowid")
+        elif "client_seq" not in row[0]:
+            self._db.execute("ALTER TABLE batches RENAME TO batches_by_seq")
 
     def _checkpoint(self, every_s: float) -> None:
         db = sqlite3.connect(self.path, isolation_level=None)
@@ -131,6 +188,7 @@ class TripLog:
         self._closing.set()
         self._checkpointer.join()
         self._db.close()
+        self._lock.close()
 
     def create_session(self, session: LoggedSession) -> None:
         self._db.execute(  # one statement: its own transaction
@@ -139,19 +197,57 @@ class TripLog:
             (session.id, session.owner, session.vehicle_id, json.dumps(session.options),
              session.created_unix))
 
-    def append(self, session_id: str, first_seq: int, records: Sequence[Any],
-               records_json: str | None = None) -> None:
-        """Write a batch of accepted packets (seq numbers from ``first_seq``) and commit;
-        ``records_json`` is their JSON array when the caller has it already.
+    def append(self, session_id: str, first_seq: int, records: Sequence[Any], rejected: int = 0,
+               client_seq: int | None = None, reply: dict[str, Any] | None = None) -> int:
+        """Write a batch: its accepted packets (seq numbers from ``first_seq``), how many of
+        it were refused, and for a numbered batch its number and reply; commit, and return
+        the batch's row id.
 
         One row a batch: encoding and inserting packet by packet cost a fifth of the
         service's time per packet."""
-        if not records:
-            return
-        self._db.execute(  # one statement: its own transaction, committed when it returns
-            "INSERT INTO batches (session_id, seq, count, records) VALUES (?, ?, ?, ?)",
-            (session_id, first_seq, len(records),
-             _ENCODER.encode(records) if records_json is None else records_json))
+        cursor = self._db.execute(  # one statement: its own transaction, committed at return
+            "INSERT INTO batches (session_id, seq, count, records, rejected, client_seq, reply)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (session_id, first_seq, len(records), _ENCODER.encode(records), rejected,
+             client_seq, None if reply is None else _ENCODER.encode(reply)))
+        rowid: int = cursor.lastrowid  # type: ignore[assignment]
+        return rowid
+
+    def save_checkpoint(self, session_id: str, checkpoint: Checkpoint) -> None:
+        self._db.execute(
+            "INSERT OR REPLACE INTO checkpoints (session_id, batch_rowid, packets, rejected, "
+            "state) VALUES (?, ?, ?, ?, ?)",
+            (session_id, checkpoint.batch_rowid, checkpoint.packets, checkpoint.rejected,
+             checkpoint.state))
+
+    def checkpoint(self, session_id: str) -> Checkpoint | None:
+        row = self._db.execute(
+            "SELECT batch_rowid, packets, rejected, state FROM checkpoints WHERE session_id = ?",
+            (session_id,)).fetchone()
+        return None if row is None else Checkpoint(row[0], row[1], row[2], bytes(row[3]))
+
+    def batches_after(self, session_id: str, rowid: int = 0) -> Iterator[LoggedBatch]:
+        """A session's batches logged after row ``rowid``, in the order they were applied."""
+        cursor = self._db.execute(
+            # the index, named: for "rowid > ? ORDER BY rowid" SQLite would rather walk the
+            # table in rowid order, every other session's rows too (seconds in a big log)
+            "SELECT rowid, records, rejected FROM batches INDEXED BY batches_of_session "
+            "WHERE session_id = ? AND rowid > ? ORDER BY rowid", (session_id, rowid))
+        for row_id, records, rejected in cursor:
+            yield LoggedBatch(row_id, json.loads(records), rejected)
+
+    def packets(self, session_id: str) -> Iterator[Any]:
+        """A session's packets in the order they were applied."""
+        for batch in self.batches_after(session_id):
+            yield from batch.records
+
+    def last_replies(self, session_id: str, limit: int) -> list[LoggedReply]:
+        """The replies to the session's last ``limit`` numbered batches, oldest first."""
+        rows = self._db.execute(
+            "SELECT client_seq, reply FROM batches INDEXED BY batches_of_session "
+            "WHERE session_id = ? AND client_seq IS NOT NULL ORDER BY rowid DESC LIMIT ?",
+            (session_id, limit)).fetchall()
+        return [LoggedReply(seq, json.loads(reply)) for seq, reply in reversed(rows)]
 
     def close_session(self, session_id: str) -> None:
         """Mark a session ended (deleted or expired); :meth:`drop_closed` removes its log."""
@@ -159,7 +255,7 @@ class TripLog:
 
     def drop_closed(self, max_batches: int = DROP_CHUNK_BATCHES) -> int:
         """Delete up to ``max_batches`` logged batches of ended sessions, and the ended
-        sessions once none is left; return how many batches went.
+        sessions (and their checkpoints) once none is left; return how many batches went.
 
         A chunk at a time, as the caller's turn allows: a session's batches lie among every
         other session's (about three to a page), so each one dropped rewrites a page; at
@@ -171,6 +267,8 @@ class TripLog:
                 "JOIN batches b ON b.session_id = s.id WHERE s.closed = 1 LIMIT ?)",
                 (max_batches,)).rowcount
             if dropped < max_batches:  # none left
+                self._db.execute("DELETE FROM checkpoints WHERE session_id IN "
+                                 "(SELECT id FROM sessions WHERE closed = 1)")
                 self._db.execute("DELETE FROM sessions WHERE closed = 1")
         return dropped
 
@@ -180,9 +278,21 @@ class TripLog:
             "WHERE closed = 0 ORDER BY created_unix").fetchall()
         return [LoggedSession(r[0], r[1], r[2], json.loads(r[3]), r[4]) for r in rows]
 
-    def packets(self, session_id: str) -> Iterator[Any]:
-        """A session's packets in the order they were applied."""
-        cursor = self._db.execute(
-            "SELECT records FROM batches WHERE session_id = ? ORDER BY seq", (session_id,))
-        for (records,) in cursor:
-            yield from json.loads(records)
+
+def _lock(path: Path) -> IO[str]:
+    """Hold ``<path>.lock`` for as long as the log is open; refuse when another has it."""
+    lock = path.with_name(path.name + ".lock").open("a+")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.seek(0)
+        holder = lock.read().strip() or "unknown"
+        lock.close()
+        raise TripLogInUse(
+            f"trip log {path} is in use by another navsvc server (pid {holder}); stop it "
+            "first, or give this one its own with --triplog / NAVSVC_TRIPLOG") from None
+    lock.seek(0)
+    lock.truncate()
+    lock.write(f"{os.getpid()}\n")
+    lock.flush()
+    return lock

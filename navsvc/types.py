@@ -106,12 +106,21 @@ class FusedEstimate:
     heading_sigma_rad: float = 0.0
     initialized: bool = True
     gps: GpsUsage | None = None
+    gps_bias_var_m2: float = 0.0  # of position_cov, the GPS error that no averaging removes
 
     @cached_property
     def position_sigma_m(self) -> float:
         """1-sigma horizontal uncertainty: sqrt of the mean of the covariance's eigenvalues."""
         c = self.position_cov_m2
         return math.sqrt(max((float(c[0, 0]) + float(c[1, 1])) / 2.0, 0.0))
+
+    @cached_property
+    def tracking_sigma_m(self) -> float:
+        """The uncertainty without the GPS bias: how far the track itself may wander (the
+        matcher's road spread already allows for a fix's steady offset from the road)."""
+        c = self.position_cov_m2
+        return math.sqrt(max((float(c[0, 0]) + float(c[1, 1])) / 2.0 - self.gps_bias_var_m2,
+                             0.0))
 
 
 class MatchState(enum.Enum):

@@ -4,7 +4,8 @@ Seed: Mayhew 1999, section 5.7: the map is a mesh of intersection nodes, each li
 adjacent intersection by a road. Here osmnx simplifies the raw OSM graph so that nodes are
 intersections and dead ends, projects it to the UTM zone of the map's centre, and consolidates
 the several OSM nodes of one complex junction (dual carriageways, roundabout entries) that lie
-within ``consolidate_m`` of each other into a single node.
+within ``consolidate_m`` of each other into a single node. A ring that meets no other road (a
+closed way alone, osmnx would drop it) keeps one of its nodes as a node, with a self-loop edge.
 
 The result is a :class:`RoadNetwork`: plain records (nodes, edges with full geometry in both the
 local frame and WGS84, and a :class:`MapInfo` summary) that the store writes and reads.
@@ -12,14 +13,15 @@ local frame and WGS84, and a :class:`MapInfo` summary) that the store writes and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from importlib.metadata import version
 from typing import Any
 
 import networkx as nx
 import numpy as np
-import osmnx as ox
 import shapely
 from pyproj import CRS
 
@@ -105,8 +107,23 @@ class MapInfo:
     consolidate_m: float
     source_name: str = ""
     source_sha256: str = ""
-    osmnx_version: str = ox.__version__
+    osmnx_version: str = field(default_factory=lambda: version("osmnx"))
     created_utc: str = ""
+    # The import summary. None: not recorded (databases written before these fields, or a
+    # source they do not apply to, such as a .graphml graph or a download).
+    road_length_m: float | None = None  # two-way roads counted once
+    junction_count: int | None = None  # nodes where three or more roads meet
+    dead_end_count: int | None = None  # nodes with one road
+    junction_nodes_merged: int | None = None  # intersection nodes merged by consolidation
+    osm_ways_kept: int | None = None  # ways of the network in the map, whole or cut
+    osm_ways_cut: int | None = None  # cut at the extract's edge (node references missing)
+    osm_ways_dropped_outside: int | None = None  # fewer than two of their nodes in the file
+    osm_ways_dropped_one_node: int | None = None  # ways of a single node
+    osm_ways_not_in_network: int | None = None  # highway ways not for cars (footway, ...)
+    osm_missing_node_refs: int | None = None  # references to nodes missing from the file
+    osm_negative_ids: int | None = None  # nodes and ways with JOSM's negative (new) ids
+    osm_josm_deleted: int | None = None  # objects a JOSM file marks deleted, left out
+    osm_invalid_locations: int | None = None  # road nodes off the globe, taken as missing
 
 
 @dataclass(frozen=True)
@@ -119,28 +136,65 @@ class RoadNetwork:
 
 
 def build_network(
-    raw: nx.MultiDiGraph, *, consolidate_m: float = DEFAULT_CONSOLIDATE_M, network: str = "drive"
+    raw: nx.MultiDiGraph, *, consolidate_m: float = DEFAULT_CONSOLIDATE_M, network: str = "drive",
+    source: str = "the source",
 ) -> RoadNetwork:
     """Simplify, project and consolidate osmnx's raw WGS84 graph into a :class:`RoadNetwork`."""
+    import osmnx as ox  # imports take 1.3 s (matplotlib, geopandas): only an import needs it
+
     if consolidate_m < 0.0 or not math.isfinite(consolidate_m):
         raise ValueError(f"consolidate_m must be a finite number >= 0, got {consolidate_m}")
     if raw.number_of_edges() == 0:
-        raise NoDrivableRoadError("the source holds no drivable road")
-    graph = ox.simplify_graph(raw) if not raw.graph.get("simplified") else raw
+        raise NoDrivableRoadError(f"{source}: no drivable road")
+    graph = raw if raw.graph.get("simplified") else _simplify(raw)
     lon, lat = _centre_lonlat(graph)
     frame = LocalFrame(utm_crs_for(lon, lat).to_wkt())
     graph = ox.project_graph(graph, to_crs=frame.crs_wkt)
+    simplified_nodes = graph.number_of_nodes()
     if consolidate_m > 0.0:
         graph = ox.consolidate_intersections(
             graph, tolerance=consolidate_m, rebuild_graph=True, dead_ends=True,
             reconnect_edges=True,
         )
-    return network_from_projected(graph, frame, network=network, consolidate_m=consolidate_m)
+        if graph.number_of_edges() == 0:
+            raise NoDrivableRoadError(
+                f"{source}: no road left after merging the nodes within {consolidate_m:g} m of "
+                "each other: every road is shorter than that; import with --consolidate-m 0")
+    net = network_from_projected(graph, frame, network=network, consolidate_m=consolidate_m,
+                                 source=source)
+    merged = simplified_nodes - len(net.nodes)
+    return dataclasses.replace(net, info=dataclasses.replace(net.info,
+                                                             junction_nodes_merged=merged))
+
+
+_RING_ANCHOR = "roadgraph_ring_anchor"
+
+
+def _simplify(raw: nx.MultiDiGraph) -> nx.MultiDiGraph:
+    """osmnx's simplification, keeping rings that meet no other road (osmnx drops them)."""
+    import osmnx as ox
+
+    raw = raw.copy()
+    for component in nx.weakly_connected_components(raw):
+        if not any(_is_endpoint(raw, n) for n in component):
+            raw.nodes[min(component)][_RING_ANCHOR] = True
+    graph: nx.MultiDiGraph = ox.simplify_graph(raw, node_attrs_include=[_RING_ANCHOR])
+    for _, data in graph.nodes(data=True):
+        data.pop(_RING_ANCHOR, None)
+    return graph
+
+
+def _is_endpoint(graph: nx.MultiDiGraph, node: int) -> bool:
+    """osmnx's strict endpoint rules 1-3 (``osmnx.simplification._is_endpoint``)."""
+    neighbours = set(graph.predecessors(node)) | set(graph.successors(node))
+    if node in neighbours or graph.out_degree(node) == 0 or graph.in_degree(node) == 0:
+        return True
+    return not (len(neighbours) == 2 and graph.degree(node) in (2, 4))
 
 
 def network_from_projected(
     graph: nx.MultiDiGraph, frame: LocalFrame, *, network: str = "drive",
-    consolidate_m: float = 0.0,
+    consolidate_m: float = 0.0, source: str = "the source",
 ) -> RoadNetwork:
     """Records from a MultiDiGraph already in the frame's metres.
 
@@ -149,7 +203,8 @@ def network_from_projected(
     """
     nodes = _node_records(graph, frame)
     edges = _edge_records(graph, frame)
-    info = summarize(nodes, edges, frame, network=network, consolidate_m=consolidate_m)
+    info = summarize(nodes, edges, frame, network=network, consolidate_m=consolidate_m,
+                     source=source)
     return RoadNetwork(info=info, nodes=nodes, edges=edges)
 
 
@@ -213,11 +268,11 @@ def _edge_coords(graph: nx.MultiDiGraph, u: int, v: int, data: dict[str, Any]) -
 
 def summarize(
     nodes: tuple[NodeRecord, ...], edges: tuple[EdgeRecord, ...], frame: LocalFrame, *,
-    network: str, consolidate_m: float,
+    network: str, consolidate_m: float, source: str = "the source",
 ) -> MapInfo:
     """The :class:`MapInfo` of a set of nodes and edges."""
     if not edges:
-        raise NoDrivableRoadError("the source holds no drivable road")
+        raise NoDrivableRoadError(f"{source}: no drivable road")
     lonlat = np.vstack([e.lonlat for e in edges])
     by_id = {n.id: n for n in nodes}
     adjacent = [
@@ -234,6 +289,9 @@ def summarize(
         longest_edge_m=float(max(e.length_m for e in edges)),
         max_adjacent_node_distance_m=float(max(adjacent)),
         network=network, consolidate_m=consolidate_m,
+        road_length_m=float(sum(e.length_m * (1.0 if e.oneway else 0.5) for e in edges)),
+        junction_count=sum(1 for n in nodes if n.degree >= 3),
+        dead_end_count=sum(1 for n in nodes if n.degree == 1),
     )
 
 

@@ -19,7 +19,7 @@ from typing import Any
 from roadgraph.build import DEFAULT_CONSOLIDATE_M, MapInfo
 from roadgraph.errors import RoadGraphError
 from roadgraph.geojson import feature_collection
-from roadgraph.importer import import_map
+from roadgraph.importer import import_map, import_warnings
 from roadgraph.osm import NETWORK_TYPES
 from roadgraph.store import read_edges_in_bbox, read_info, read_network
 
@@ -131,6 +131,9 @@ def _cmd_import(args: argparse.Namespace) -> int:
     except ValueError as exc:  # the importer's own argument check
         print(f"roadgraph: error: {exc}", file=sys.stderr)
         return 2
+    source = args.source if args.source is not None else info.source_name
+    for warning in import_warnings(info):
+        print(f"roadgraph: warning: {source}: {warning}", file=sys.stderr)
     if not args.quiet:
         _print_info(info, args.output, as_json=args.json)
     return 0
@@ -177,8 +180,9 @@ def _print_info(info: MapInfo, db: Path, *, as_json: bool) -> None:
         ("network", f"{info.network}, junctions consolidated within {info.consolidate_m:g} m"),
         ("CRS", crs),
         ("bbox (W,S,E,N)", f"{w:.6f},{s:.6f},{e:.6f},{n:.6f}"),
-        ("nodes", f"{info.node_count}"),
+        ("nodes", f"{info.node_count}{_node_detail(info)}"),
         ("edges", f"{info.edge_count} ({info.total_length_m / 1000:.1f} km of directed road)"),
+        *_summary_rows(info),
         ("longest edge", f"{info.longest_edge_m:.1f} m"),
         ("max adjacent-node distance", f"{info.max_adjacent_node_distance_m:.1f} m"),
         ("built", f"{info.created_utc or '-'} with osmnx {info.osmnx_version}"),
@@ -186,6 +190,40 @@ def _print_info(info: MapInfo, db: Path, *, as_json: bool) -> None:
     width = max(len(k) for k, _ in rows)
     for key, value in rows:
         print(f"{key:<{width}}  {value}")
+
+
+def _node_detail(info: MapInfo) -> str:
+    if info.junction_count is None:
+        return ""
+    merged = "" if not info.junction_nodes_merged else \
+        f"; {info.junction_nodes_merged} merged into nearby junctions"
+    return f" ({info.junction_count} junctions, {info.dead_end_count} dead ends{merged})"
+
+
+def _summary_rows(info: MapInfo) -> list[tuple[str, str]]:
+    """The rows of the import summary recorded by this version (none for older databases)."""
+    rows = []
+    if info.road_length_m is not None:
+        rows.append(("roads", f"{info.road_length_m / 1000:.1f} km (two-way roads counted once)"))
+    if info.osm_ways_kept is None:
+        return rows
+    rows.append(("OSM ways kept", f"{info.osm_ways_kept} ({info.osm_ways_cut} cut at the "
+                                  "extract's edge)"))
+    rows.append(("OSM ways dropped",
+                 f"{info.osm_ways_dropped_outside} outside the extract, "
+                 f"{info.osm_ways_dropped_one_node} of one node, "
+                 f"{info.osm_ways_not_in_network} not in the {info.network} network"))
+    missing = info.osm_missing_node_refs
+    rows.append(("missing node refs", f"{missing} ({'clipped' if missing else 'complete'} "
+                                      "extract)"))
+    if info.osm_negative_ids:
+        rows.append(("negative ids", f"{info.osm_negative_ids} (new objects in a JOSM file)"))
+    if info.osm_josm_deleted:
+        rows.append(("JOSM deleted", f"{info.osm_josm_deleted} objects left out"))
+    if info.osm_invalid_locations:
+        rows.append(("invalid locations", f"{info.osm_invalid_locations} road nodes, taken as "
+                                          "missing"))
+    return rows
 
 
 _COMMANDS = {"import": _cmd_import, "info": _cmd_info, "export": _cmd_export}

@@ -2,6 +2,8 @@
 
 The output path is checked before any work, and the database is written atomically by the
 store, so a failed import leaves nothing behind and never damages an existing database.
+:func:`import_warnings` says what a user should know about a map that did import (a clipped
+extract, no junction, JOSM's negative ids).
 """
 
 from __future__ import annotations
@@ -11,13 +13,25 @@ import logging
 from datetime import UTC, datetime
 from pathlib import Path
 
+import networkx as nx
 from tqdm import tqdm
 
 from roadgraph.build import DEFAULT_CONSOLIDATE_M, MapInfo, build_network
-from roadgraph.osm import download_graph, file_sha256, read_graphml, read_osm_file
+from roadgraph.osm import (
+    ReadReport,
+    Stage,
+    download_graph,
+    file_sha256,
+    read_graphml,
+    read_osm,
+)
 from roadgraph.store import check_writable, write_network
 
 log = logging.getLogger(__name__)
+
+# The steps of an import from a local OSM file, in order (the progress bar's total).
+_FILE_STEPS = ("reading ways", "reading nodes", "building the raw graph (osmnx)",
+               "simplifying and consolidating", "writing the database")
 
 
 def import_map(
@@ -34,31 +48,87 @@ def import_map(
     if (source is None) == (place is None and bbox is None) or (place and bbox):
         raise ValueError("give exactly one of SOURCE, --place or --bbox")
     check_writable(output)
-    steps = tqdm(total=3, desc="import", unit="step", leave=False,
-                 disable=None if progress else True)
-    with steps:
-        steps.set_postfix_str("reading OSM")
-        if source is not None and source.suffix == ".graphml":
-            raw = read_graphml(source)
-            name, sha = source.name, file_sha256(source)
-        elif source is not None:
-            raw = read_osm_file(source, network)
-            name, sha = source.name, file_sha256(source)
-        else:
-            raw = download_graph(place=place, bbox=bbox, network=network)
-            name, sha = (f"place:{place}" if place else f"bbox:{bbox}"), ""
-        log.info("read %d OSM nodes, %d edges", raw.number_of_nodes(), raw.number_of_edges())
+    osm_file = source is not None and source.suffix != ".graphml"
+    # Steps take very different times (osmnx's part dominates): the step's name and number,
+    # and the time so far; no percentage or estimate, which would be made up.
+    total = len(_FILE_STEPS) if osm_file else 3
+    steps = tqdm(total=total, desc="import", bar_format="{desc} [{elapsed}]", leave=False,
+                 disable=None if progress else True, position=0)
+
+    def stage(name: str) -> None:
         steps.update()
-        steps.set_postfix_str("building intersection graph")
-        net = build_network(raw, consolidate_m=consolidate_m, network=network)
-        info = dataclasses.replace(
+        steps.set_description_str(f"import, step {steps.n}/{total}: {name}")
+
+    with steps:
+        raw, report, name, sha = _read_source(source, place, bbox, network, progress, stage)
+        log.info("read %d OSM nodes, %d edges", raw.number_of_nodes(), raw.number_of_edges())
+        stage("simplifying and consolidating")
+        net = build_network(raw, consolidate_m=consolidate_m, network=network,
+                            source=str(source) if source is not None else name)
+        info = _with_report(dataclasses.replace(
             net.info, source_name=name, source_sha256=sha,
             created_utc=datetime.now(UTC).isoformat(timespec="seconds"),
-        )
+        ), report)
         net = dataclasses.replace(net, info=info)
-        steps.update()
-        steps.set_postfix_str("writing database")
+        stage("writing the database")
         write_network(net, output)
-        steps.update()
     log.info("wrote %s: %d nodes, %d edges", output, info.node_count, info.edge_count)
     return info
+
+
+def _read_source(
+    source: Path | None, place: str | None, bbox: tuple[float, float, float, float] | None,
+    network: str, progress: bool, stage: Stage,
+) -> tuple[nx.MultiDiGraph, ReadReport | None, str, str]:
+    """The raw graph, the read report (local OSM files only), the source's name and SHA-256."""
+    if source is not None and source.suffix == ".graphml":
+        stage("reading GraphML")
+        return read_graphml(source), None, source.name, file_sha256(source)
+    if source is not None:
+        read = read_osm(source, network, progress=progress, stage=stage)
+        return read.graph, read.report, source.name, file_sha256(source)
+    stage("downloading (osmnx)")
+    raw = download_graph(place=place, bbox=bbox, network=network)
+    return raw, None, (f"place:{place}" if place else f"bbox:{bbox}"), ""
+
+
+def _with_report(info: MapInfo, report: ReadReport | None) -> MapInfo:
+    """The summary with what reading the file kept and dropped (local OSM files only)."""
+    if report is None:
+        return info
+    return dataclasses.replace(
+        info, osm_ways_kept=report.ways_kept, osm_ways_cut=report.ways_cut,
+        osm_ways_dropped_outside=report.ways_dropped_outside,
+        osm_ways_dropped_one_node=report.ways_dropped_one_node,
+        osm_ways_not_in_network=report.ways_not_in_network,
+        osm_missing_node_refs=report.missing_node_refs,
+        osm_negative_ids=report.negative_ids, osm_josm_deleted=report.josm_deleted,
+        osm_invalid_locations=report.invalid_locations,
+    )
+
+
+def import_warnings(info: MapInfo) -> list[str]:
+    """What a user should know about a map that imported, one sentence each."""
+    warnings = []
+    if info.osm_invalid_locations:
+        warnings.append(f"{info.osm_invalid_locations} road nodes with an invalid location "
+                        "(beyond 90 degrees of latitude or 180 of longitude), taken as missing")
+    if info.osm_missing_node_refs:
+        warnings.append(
+            f"clipped extract: {info.osm_missing_node_refs} node references missing from the "
+            f"file; {info.osm_ways_cut} ways cut at the edge, {info.osm_ways_dropped_outside} "
+            "dropped (fewer than two nodes inside); roads end at the extract's edge")
+    if info.osm_ways_dropped_one_node:
+        warnings.append(f"{info.osm_ways_dropped_one_node} ways of a single node dropped")
+    if info.osm_ways_kept == 1:
+        warnings.append("a single road: imported, but there is no other road to turn onto")
+    elif info.junction_count == 0:
+        warnings.append("no junction (no node where three roads meet): imported, but there is "
+                        "no road to turn onto")
+    if info.osm_negative_ids:
+        warnings.append(
+            f"{info.osm_negative_ids} nodes and ways with negative ids (new objects in a JOSM "
+            "file, not yet in OpenStreetMap): imported, but their ids are not OpenStreetMap's")
+    if info.osm_josm_deleted:
+        warnings.append(f"objects marked deleted by JOSM left out: {info.osm_josm_deleted}")
+    return warnings

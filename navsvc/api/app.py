@@ -1,7 +1,8 @@
 """The FastAPI application: routers under ``/v1``, errors as JSON, limits, session upkeep.
 
-``create_app(settings)`` opens the road graph and the trip log, restores the sessions that were
-open when the server last stopped (crash included), and expires idle sessions and drops ended
+``create_app(settings)`` opens the road graph and the trip log; the server then serves at
+once, restoring the sessions that were open when it last stopped (crash included) in the
+background (a request for one restores it first), and expires idle sessions and drops ended
 sessions' trip logs in the background.
 Every error body is ``{"error": {"code", "message"[, "fields"]}}``.
 """
@@ -17,16 +18,26 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from navsvc import __version__
 from navsvc.api.deps import AppState
+from navsvc.api.logs import redact_api_keys
 from navsvc.api.routes import maps, match, ops, sessions, stream
 from navsvc.api.settings import Settings
-from navsvc.errors import ConfigError, LimitExceeded, NavsvcError, SessionNotFound, TraceError
+from navsvc.errors import (
+    BatchAlreadyApplied,
+    ConfigError,
+    LimitExceeded,
+    NavsvcError,
+    SessionNotFound,
+    TraceError,
+)
 from navsvc.metrics import Metrics
 from navsvc.session import SessionConfig, SessionStore, VehicleSession
 from navsvc.triplog import TripLog
@@ -34,7 +45,8 @@ from roadgraph import RoadGraph, RoadGraphError
 
 log = logging.getLogger(__name__)
 
-_STATUS = {SessionNotFound: 404, LimitExceeded: 429, ConfigError: 422, TraceError: 422}
+_STATUS = {SessionNotFound: 404, LimitExceeded: 429, ConfigError: 422, TraceError: 422,
+           BatchAlreadyApplied: 409}
 _CODES = {400: "bad_request", 401: "unauthorized", 404: "not_found", 405: "method_not_allowed",
           409: "conflict", 413: "too_large", 422: "invalid_request", 429: "limit_exceeded",
           503: "unavailable"}
@@ -50,21 +62,24 @@ def create_app(settings: Settings) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        redact_api_keys()  # here: uvicorn has set up its loggers by now
         warm_up(graph)
-        restored = store.restore()
+        reopened = store.reopen()
         gc.collect()
         gc.freeze()  # the map and libraries stay: spare them the garbage collector's scans
         # Collections far rarer than Python's default (700, 10, 10): a full one walks every
         # session's objects (30-50 ms with 1,000 sessions), which made the p99 latency.
         gc.set_threshold(20_000, 50, 100)
-        state.metrics.sessions.set(restored)
-        log.info("serving map %r (%s); trip log %s; %d sessions restored", graph.map_id,
-                 settings.map_path, settings.triplog, restored)
-        upkeep = [asyncio.create_task(_expire_idle(state)),
+        state.metrics.sessions.set(reopened)
+        log.info("serving map %r (%s); trip log %s; %d open sessions to restore", graph.map_id,
+                 settings.map_path, settings.triplog, reopened)
+        upkeep = [asyncio.create_task(_restore_sessions(store)),
+                  asyncio.create_task(_expire_idle(state)),
                   asyncio.create_task(_drop_closed_logs(triplog))]
         yield
         for task in upkeep:
             task.cancel()
+        store.checkpoint_all()  # the next start then replays nothing
         triplog.close()
 
     app = FastAPI(title="navsvc", version=__version__, lifespan=lifespan,
@@ -75,7 +90,33 @@ def create_app(settings: Settings) -> FastAPI:
         app.include_router(module.router, prefix="/v1")
     _add_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.openapi = lambda: _openapi(app, keys_required=bool(settings.api_keys))  # type: ignore[method-assign]
     return app
+
+
+def _openapi(app: FastAPI, keys_required: bool) -> dict[str, Any]:
+    """The OpenAPI document as the server behaves: every operation may answer 400 (a body
+    that is not JSON) and, with keys, 401; an open server declares no key scheme."""
+    if app.openapi_schema is None:
+        schema = get_openapi(title=app.title, version=app.version,
+                             description=app.description, routes=app.routes)
+        error = {"content": {"application/json": {"schema": {
+            "$ref": "#/components/schemas/ErrorBody"}}}}
+        for path in schema["paths"].values():
+            for operation in path.values():
+                responses = operation.setdefault("responses", {})
+                if "requestBody" in operation:
+                    responses.setdefault("400", {**error, "description": "body is not JSON"})
+                if not keys_required:
+                    operation.pop("security", None)
+                    responses.pop("401", None)
+                elif "security" in operation:
+                    responses.setdefault("401", {**error,
+                                                 "description": "missing or unknown API key"})
+        if not keys_required:
+            schema.get("components", {}).pop("securitySchemes", None)
+        app.openapi_schema = schema
+    return app.openapi_schema
 
 
 def warm_up(graph: RoadGraph) -> None:
@@ -88,6 +129,18 @@ def warm_up(graph: RoadGraph) -> None:
     inertial = [{"t": 2.0 + 0.01 * i, "kind": "imu", "yaw_rate_dps": 0.0} for i in range(1, 5)]
     odometer = [{"t": 2.0 + 0.02 * i, "kind": "odometer", "speed_mps": 11.0} for i in range(1, 3)]
     session.add_records(sorted(fixes + inertial + odometer, key=lambda r: r["t"]))
+
+
+async def _restore_sessions(store: SessionStore) -> None:
+    """Rebuild the reopened sessions one per turn of the event loop, between requests (a
+    request for one of them rebuilds it at once)."""
+    start, count = time.perf_counter(), 0
+    while store.restore_next():
+        count += 1
+        await asyncio.sleep(0)
+    if count:
+        log.info("%d sessions restored in the background in %.2f s", count,
+                 time.perf_counter() - start)
 
 
 async def _expire_idle(state: AppState) -> None:
@@ -123,12 +176,19 @@ def _error(status: int, message: str, **extra: Any) -> JSONResponse:
 def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
-        return _error(exc.status_code, str(exc.detail))
+        response = _error(exc.status_code, str(exc.detail))
+        response.headers.update(exc.headers or {})  # 405's Allow, for one
+        return response
 
     @app.exception_handler(RequestValidationError)
     async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = exc.errors()
+        if any(e["type"] == "json_invalid" for e in errors):
+            return _error(400, "request body is not valid JSON: "
+                               + "; ".join(str(e.get("ctx", {}).get("error", e["msg"]))
+                                           for e in errors)[:300])
         fields = [{"field": ".".join(str(p) for p in e["loc"]), "message": e["msg"]}
-                  for e in exc.errors()]
+                  for e in errors]
         summary = "; ".join(f"{f['field']}: {f['message']}" for f in fields[:5])
         return _error(422, f"invalid request: {summary}", fields=fields)
 

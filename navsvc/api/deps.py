@@ -11,7 +11,7 @@ from fastapi.security import APIKeyHeader
 
 from navsvc.api.settings import Settings
 from navsvc.metrics import Metrics
-from navsvc.session import SessionStore, owner_of
+from navsvc.session import SessionStore, key_bytes, owner_of
 from roadgraph import RoadGraph
 
 API_KEY_HEADER = "X-API-Key"
@@ -33,10 +33,17 @@ def get_state(request: Request) -> AppState:
 
 
 def check_key(state: AppState, key: str | None) -> str:
-    """The owner the key stands for; 401 when keys are required and this one is not valid."""
+    """The owner the key stands for; 401 when keys are required and this one is not valid.
+
+    Compared as bytes (any characters a client sends), with every accepted key, so that the
+    time taken says nothing about which key came close."""
     keys = state.settings.api_keys
-    if keys and not (key and any(secrets.compare_digest(key, k) for k in keys)):
-        raise HTTPException(401, "missing or unknown API key (header X-API-Key)")
+    if keys:
+        given, valid = key_bytes(key), False
+        for k in keys:
+            valid |= secrets.compare_digest(given, key_bytes(k))
+        if not (key and valid):
+            raise HTTPException(401, "missing or unknown API key (header X-API-Key)")
     return owner_of(key)
 
 

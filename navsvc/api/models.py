@@ -70,6 +70,9 @@ class BatchReply(BaseModel):
     rejected: list[RejectedPacket]
     positions: list[dict[str, Any]] = Field(
         description="matched positions produced by the batch (interfaces.md), oldest first")
+    duplicate: bool = Field(
+        False, description="true when this numbered batch had been applied already: the reply "
+                          "is its first one, and nothing was applied again")
 
 
 class TracePoint(BaseModel):

@@ -31,17 +31,25 @@ class FusionConfig:
     wheelbase_m: float = 2.7
     ticks_per_m: float = 27.3  # thesis: ABS pulses per metre
     gps_uere_m: float = 3.5  # sigma = HDOP x UERE when no accuracy_m is given (tuned: bench)
-    gps_default_sigma_m: float = 5.0
+    gps_default_sigma_m: float = 10.0  # a fix that says nothing of its accuracy
     gps_velocity_sigma_mps: float = 0.5
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
     gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
-    reinit_after_gated_fixes: int = 10  # ekf: this many gated fixes in a row → restart from GPS
+    gps_nis_memory_fixes: float = 30.0  # ekf: the fixes the GPS error level is learnt over
+    gps_huber_nis: float = 5.99  # ekf: a fix past this NIS (95 %, 2 dof) pulls as one at it
+    gps_bias_share: float = 0.7  # ekf: of a fix's sigma, the part that is a slowly changing
+    # error: averaging fixes does not remove it, so the reported position sigma includes it
+    reacquire_after_gated_s: float = 30.0  # ekf: fixes refused this long → start over from GPS
+    inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad
     min_sats: int = 3  # thesis validity: fewer than 3 satellites is bad
     stationary_after_samples: int = 20  # thesis: odometer zero for 20+ samples
     odometer_window_s: float = 0.25  # speed from distance over at least this long (ticks)
-    initial_heading_min_move_m: float = 5.0  # heading from two fixes this far apart
+    initial_heading_min_move_m: float = 15.0  # heading from two fixes at least this far apart
+    initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas apart
+    initial_speed_sigma_mps: float = 5.0  # speed at start-up when nothing measured it
+    odo_scale_limits: tuple[float, float] = (0.7, 1.3)  # a wheel odometer is never further off
     reorder_window_s: float = 0.25
     output_interval_s: float = 1.0  # emit an estimate at least this often (GPS outages)
     max_step_s: float = 0.1  # longer gaps are propagated in steps of this size

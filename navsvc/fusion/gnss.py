@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from navsvc.types import GpsFix, GpsFixType
 
-_FIX_SIGMA_M = {GpsFixType.RTK: 0.05, GpsFixType.DGPS: 1.0, GpsFixType.FIX_3D: 4.0,
-                GpsFixType.FIX_2D: 8.0}
+# A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
+# fix in a street canyon is off by tens of metres as often as not).
+_FIX_SIGMA_M = {GpsFixType.RTK: 0.05, GpsFixType.DGPS: 1.0}
 
 
 def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:
@@ -26,7 +27,8 @@ def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:
 
 
 def gps_sigma_m(fix: GpsFix, uere_m: float, default_sigma_m: float) -> float:
-    """1-σ horizontal error of a fix: its own accuracy, else HDOP × UERE, else by fix type."""
+    """1-σ horizontal error of a fix: its own accuracy, else HDOP × UERE, else by fix type
+    (RTK, DGPS), else the conservative ``default_sigma_m``."""
     if fix.accuracy_m is not None and fix.accuracy_m > 0.0:
         return fix.accuracy_m
     if fix.hdop is not None and fix.hdop > 0.0:

@@ -23,7 +23,7 @@ The vehicle is on one directed edge of the intersection graph at a time:
 Ambiguity radius (the seed: expected drift times the map's longest adjacent-node distance;
 also at least ``k`` sigma of the filter's position)::
 
-    r_a = clamp(max(drift_fraction x longest_adjacent_m, sigma_factor x position_sigma_m),
+    r_a = clamp(max(drift_fraction x longest_adjacent_m, sigma_factor x tracking_sigma_m),
                 min_radius_m, max_radius_m)
 
 Pure: no I/O; :meth:`OnlineMatcher.update` takes an estimate and returns a matched position.
@@ -116,7 +116,7 @@ class OnlineMatcher:
         lost = self._check_lost(e, proj)
         if lost is not None:
             return lost
-        if s.region is None and proj.remaining_m <= self.ambiguity_radius_m(e.position_sigma_m):
+        if s.region is None and proj.remaining_m <= self.ambiguity_radius_m(e.tracking_sigma_m):
             self._enter_region(e, proj)
         if s.region is not None:
             return self._in_region(e, proj)
@@ -126,7 +126,7 @@ class OnlineMatcher:
         """Start-up and re-initialisation: the best nearby edge by distance and heading."""
         c, s = self.config, self.state
         lo, hi = c.startup_radius_m
-        radius = min(max(3.0 * e.position_sigma_m + 15.0, lo), hi)
+        radius = min(max(3.0 * e.tracking_sigma_m + 15.0, lo), hi)
         best: tuple[float, EdgeProjection] | None = None
         for proj in self.graph.edges_near(e.x_m, e.y_m, radius):
             score = self._likelihood(e, proj, self._heading_error(e, proj))
@@ -142,7 +142,7 @@ class OnlineMatcher:
     def _check_lost(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition | None:
         """Off road (far from the road) or lost (moving against it) for long enough."""
         c, s = self.config, self.state
-        far = proj.distance_m > max(c.off_road_distance_m, 4.0 * e.position_sigma_m)
+        far = proj.distance_m > max(c.off_road_distance_m, 4.0 * e.tracking_sigma_m)
         s.far_since_t = (s.far_since_t if s.far_since_t is not None else e.t) if far else None
         against = e.speed_mps >= c.min_speed_for_heading_mps and s.region is None and \
             abs(self._heading_error(e, proj)) > c.lost_heading_rad
@@ -153,7 +153,7 @@ class OnlineMatcher:
             return self._start(e)
         # the wrong one of two roads that fork at a small angle: no heading error, and for a
         # long way no further than off_road_distance_m, but clearly off it for its sigma
-        sigma = math.hypot(c.road_sigma_m, e.position_sigma_m)
+        sigma = math.hypot(c.road_sigma_m, e.tracking_sigma_m)
         poor = s.region is None and proj.distance_m > c.poor_fit_sigmas * sigma
         s.poor_fit_since_t = (s.poor_fit_since_t if s.poor_fit_since_t is not None else e.t) \
             if poor else None
@@ -170,7 +170,7 @@ class OnlineMatcher:
     def _enter_region(self, e: FusedEstimate, proj: EdgeProjection) -> None:
         s = self.state
         assert s.edge is not None
-        radius = self.ambiguity_radius_m(e.position_sigma_m)
+        radius = self.ambiguity_radius_m(e.tracking_sigma_m)
         hypotheses = [s.edge, *self._reachable(s.edge, 2.0 * radius + 20.0)]
         s.region = _Region(node=s.edge.v, radius_m=radius, entry_heading_rad=e.heading_rad,
                            entry_road_bearing_rad=proj.bearing_rad,
@@ -218,7 +218,7 @@ class OnlineMatcher:
         if math.hypot(e.x_m - node.x_m, e.y_m - node.y_m) > region.radius_m and \
                 (best != s.edge or projections[best].remaining_m > region.radius_m):
             s.edge, s.region = best, None  # leaving the region: commit
-            if projections[best].remaining_m <= self.ambiguity_radius_m(e.position_sigma_m):
+            if projections[best].remaining_m <= self.ambiguity_radius_m(e.tracking_sigma_m):
                 self._enter_region(e, projections[best])
                 return self._in_region(e, projections[best])
             return self._on_road(e, projections[best])
@@ -251,7 +251,7 @@ class OnlineMatcher:
 
     def _likelihood(self, e: FusedEstimate, proj: EdgeProjection, angle_error_rad: float) -> float:
         c = self.config
-        sigma_d2 = c.road_sigma_m ** 2 + e.position_sigma_m ** 2
+        sigma_d2 = c.road_sigma_m ** 2 + e.tracking_sigma_m ** 2
         sigma_h = math.hypot(c.turn_sigma_rad, e.heading_sigma_rad)
         if e.speed_mps < c.min_speed_for_heading_mps:
             angle_error_rad = 0.0

@@ -9,6 +9,16 @@ quantisation; accelerometer bias and noise; steering bias and noise; GPS Gauss-M
 correlated error plus white noise, multipath jumps, and outages (explicit windows, and
 tunnels).
 
+Harsher errors, all off by default (so that an existing :class:`DriveSpec` simulates the same
+drive, bit for bit): gyro scale factor and a given turn-on bias; a given odometer scale and
+speed-only odometers; GPS course noise that grows as speed falls and no course or speed below
+a threshold; receivers that send no course, speed or HDOP; non-line-of-sight (NLOS) runs,
+long biased stretches that the HDOP does not show; GPS latency (the fix at ``t`` is where the
+car was ``gps_latency_s`` earlier); a standstill at the start; and a recorded real error in
+place of the synthetic one (:mod:`navsvc.sim.gnss_replay`). :mod:`navsvc.sim.harsh` draws
+them per drive. Draws for these come from a second random stream of the seed, so the first
+stream (route, stops and the default errors) is drawn as before.
+
 Output: records in the wire format of interfaces.md (packets plus ``kind: "truth"``), time
 ordered, ``t`` in seconds since the start of the drive.
 """
@@ -16,13 +26,14 @@ ordered, ``t`` in seconds since the start of the drive.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import networkx as nx
 import numpy as np
 import numpy.typing as npt
 
+from navsvc.sim.gnss_replay import GnssErrorRecording, replay_error
 from roadgraph import EdgeKey, RoadGraph
 from roadgraph.geometry import FloatArray
 
@@ -67,9 +78,21 @@ class SensorErrors:
     gps_multipath_duration_s: tuple[float, float] = (2.0, 6.0)
     gps_speed_sigma_mps: float = 0.2
     gps_heading_sigma_deg: float = 2.0
+    # harsher errors, off by default (see the module docstring)
+    gyro_turn_on_bias_dps: float | None = None  # this turn-on bias instead of a draw
+    gyro_scale_error: float = 0.0  # the gyro reads (1 + this) x the true rate
+    odometer_scale: float | None = None  # this scale factor error instead of a draw
+    odometer_speed_sigma_mps: float = 0.05  # noise of a speed-only odometer
+    gps_course_sigma_1mps_deg: float = 0.0  # course noise grows as this / speed (1 m/s units)
+    gps_min_speed_for_course_mps: float = 0.0  # slower: the fix has no course and no speed
+    gps_nlos_rate_per_s: float = 0.0  # chance per second that an NLOS run starts
+    gps_nlos_m: tuple[float, float] = (20.0, 80.0)  # its bias, uniform, random direction
+    gps_nlos_duration_s: tuple[float, float] = (10.0, 60.0)
+    gps_latency_s: float = 0.0  # the fix at t is where the car was this long before t
 
 
 STANDARD_GRAVITY_MPS2 = 9.80665
+HARSH_STREAM = 15  # the second random stream of a seed: np.random.default_rng((seed, 15))
 
 
 @dataclass(frozen=True)
@@ -94,6 +117,19 @@ class DriveSpec:
     max_decel_mps2: float = 2.5
     wheelbase_m: float = 2.7
     errors: SensorErrors = field(default_factory=SensorErrors)
+    start_standstill_s: float = 0.0  # stand still this long before driving off
+    odometer_reports: str = "distance"  # "distance" (cumulative, ticks) or "speed" (only)
+    gps_reports_velocity: bool = True  # speed and course on each fix
+    gps_reports_hdop: bool = True
+    gps_error_replay: GnssErrorRecording | None = None  # real error instead of the synthetic
+    gps_error_replay_offset_s: int | None = None  # into the recording; None: from the seed
+
+    def __post_init__(self) -> None:
+        if self.odometer_reports not in ("distance", "speed"):
+            raise ValueError(f"odometer_reports must be 'distance' or 'speed', "
+                             f"not {self.odometer_reports!r}")
+        if self.start_standstill_s < 0 or self.errors.gps_latency_s < 0:
+            raise ValueError("start_standstill_s and gps_latency_s must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -293,6 +329,8 @@ def simulate_drive(graph: RoadGraph, spec: DriveSpec) -> list[dict[str, Any]]:
     rng = np.random.default_rng(spec.seed)
     route = random_route(graph, spec.duration_s * 15.0 + 500.0, rng)
     path = _build_path(graph, route, spec, rng)
+    if spec.start_standstill_s > 0:
+        path = replace(path, stops=[(0.0, spec.start_standstill_s), *path.stops])
     truth = _sample_truth(path, spec.duration_s, spec.imu_rate_hz)
     records = _truth_records(graph, path, truth, spec)
     sensors = set(spec.sensors)
@@ -303,7 +341,8 @@ def simulate_drive(graph: RoadGraph, spec: DriveSpec) -> list[dict[str, Any]]:
     if "steering" in sensors:
         records += _steering_records(truth, spec, rng)
     if "gps" in sensors:
-        records += _gps_records(graph, path, truth, spec, rng)
+        records += _gps_records(graph, path, truth, spec, rng,
+                                np.random.default_rng((spec.seed, HARSH_STREAM)))
     order = {"truth": 0, "gps": 1, "imu": 2, "odometer": 3, "steering": 4}
     records.sort(key=lambda r: (r["t"], order[r["kind"]]))
     return records
@@ -332,9 +371,14 @@ def _imu_records(truth: _Truth, spec: DriveSpec, rng: np.random.Generator) -> li
     e = spec.errors
     n = len(truth.t)
     dt = 1.0 / spec.imu_rate_hz
-    bias = rng.normal(0.0, e.gyro_bias_dps) + np.cumsum(
+    turn_on = rng.normal(0.0, e.gyro_bias_dps) if e.gyro_turn_on_bias_dps is None \
+        else e.gyro_turn_on_bias_dps
+    bias = turn_on + np.cumsum(
         rng.normal(0.0, e.gyro_bias_drift_dps_per_sqrt_s * math.sqrt(dt), n))
-    yaw_left_dps = -np.degrees(truth.rate) + bias + rng.normal(0.0, e.gyro_noise_dps, n)
+    true_left_dps = -np.degrees(truth.rate)
+    if e.gyro_scale_error:
+        true_left_dps = true_left_dps * (1.0 + e.gyro_scale_error)
+    yaw_left_dps = true_left_dps + bias + rng.normal(0.0, e.gyro_noise_dps, n)
     accel_bias = rng.normal(0.0, e.accel_bias_mps2)
     fwd = truth.accel + accel_bias + rng.normal(0.0, e.accel_noise_mps2, n)
     left = -truth.speed * truth.rate + rng.normal(0.0, e.accel_noise_mps2, n)
@@ -351,12 +395,27 @@ def _imu_records(truth: _Truth, spec: DriveSpec, rng: np.random.Generator) -> li
 def _odometer_records(truth: _Truth, spec: DriveSpec,
                       rng: np.random.Generator) -> list[dict[str, Any]]:
     e = spec.errors
-    scale = 1.0 + rng.normal(0.0, e.odometer_scale_error)
+    scale = 1.0 + (rng.normal(0.0, e.odometer_scale_error) if e.odometer_scale is None
+                   else e.odometer_scale)
+    if spec.odometer_reports == "speed":
+        return _speed_odometer_records(truth, spec, scale, rng)
     out = []
     for i in _every(truth, spec.odometer_rate_hz, spec.imu_rate_hz):
         ticks = math.floor(truth.s[i] * scale * e.ticks_per_m)
         out.append({"t": round(float(truth.t[i]), 4), "kind": "odometer",
                     "distance_m": ticks / e.ticks_per_m})
+    return out
+
+
+def _speed_odometer_records(truth: _Truth, spec: DriveSpec, scale: float,
+                            rng: np.random.Generator) -> list[dict[str, Any]]:
+    """A wheel-speed sensor: speed only, scaled, noisy, never negative, 0 when standing."""
+    out = []
+    for i in _every(truth, spec.odometer_rate_hz, spec.imu_rate_hz):
+        v = float(truth.speed[i])
+        reading = 0.0 if v < 0.05 else \
+            max(v * scale + rng.normal(0.0, spec.errors.odometer_speed_sigma_mps), 0.0)
+        out.append({"t": round(float(truth.t[i]), 4), "kind": "odometer", "speed_mps": reading})
     return out
 
 
@@ -383,29 +442,84 @@ def _gps_blocked(graph: RoadGraph, path: _Path, truth: _Truth, i: int, spec: Dri
 
 
 def _gps_records(graph: RoadGraph, path: _Path, truth: _Truth, spec: DriveSpec,
-                 rng: np.random.Generator) -> list[dict[str, Any]]:
+                 rng: np.random.Generator, extra: np.random.Generator) -> list[dict[str, Any]]:
+    """GPS fixes; ``rng`` draws the default errors (in their original order), ``extra`` the
+    harsher ones (NLOS runs, the replay offset)."""
     e = spec.errors
     dt = 1.0 / spec.gps_rate_hz
     phi = math.exp(-dt / e.gps_markov_tau_s)
     markov = rng.normal(0.0, e.gps_markov_sigma_m, 2)
     jump, jump_until = np.zeros(2), -1.0
+    nlos, nlos_until = np.zeros(2), -1.0
+    fixes = _every(truth, spec.gps_rate_hz, spec.imu_rate_hz)
+    replayed = _replayed_error(spec, truth.t[fixes], extra)
     out = []
-    for i in _every(truth, spec.gps_rate_hz, spec.imu_rate_hz):
+    for n, i in enumerate(fixes):
         t = float(truth.t[i])
         markov = phi * markov + rng.normal(0.0, e.gps_markov_sigma_m * math.sqrt(1 - phi ** 2), 2)
         if t >= jump_until and rng.random() < e.gps_multipath_rate_per_s * dt:
-            angle = rng.uniform(0.0, 2.0 * math.pi)
-            jump = rng.uniform(*e.gps_multipath_m) * np.array([math.sin(angle), math.cos(angle)])
-            jump_until = t + rng.uniform(*e.gps_multipath_duration_s)
+            jump, jump_until = _random_offset(rng, e.gps_multipath_m,
+                                              e.gps_multipath_duration_s, t)
+        if e.gps_nlos_rate_per_s and t >= nlos_until and \
+                extra.random() < e.gps_nlos_rate_per_s * dt:
+            nlos, nlos_until = _random_offset(extra, e.gps_nlos_m, e.gps_nlos_duration_s, t)
         if _gps_blocked(graph, path, truth, i, spec):
             continue
         err = markov + rng.normal(0.0, e.gps_white_sigma_m, 2) + (jump if t < jump_until else 0)
-        lon, lat = graph.frame.to_wgs84(truth.x[i] + err[0], truth.y[i] + err[1])
-        speed = max(float(truth.speed[i]) + rng.normal(0.0, e.gps_speed_sigma_mps), 0.0)
-        heading = math.degrees(truth.heading[i]) + rng.normal(0.0, e.gps_heading_sigma_deg)
-        if speed < 0.5:
-            heading = rng.uniform(0.0, 360.0)  # a stopped receiver's course wanders
-        out.append({"t": round(t, 4), "kind": "gps", "lat": lat, "lon": lon,
-                    "speed_mps": speed, "heading_deg": heading % 360.0,
-                    "hdop": 2.5 if t < jump_until else 1.0, "sats": 8, "fix": "3d"})
+        if t < nlos_until:
+            err = err + nlos
+        if replayed is not None:
+            if not replayed[0][n]:
+                continue
+            err = replayed[1][n]
+        out.append(_gps_record(graph, truth, i, err, spec, rng, t < jump_until))
     return out
+
+
+def _random_offset(rng: np.random.Generator, size_m: tuple[float, float],
+                   duration_s: tuple[float, float], t: float) -> tuple[FloatArray, float]:
+    """A bias of uniform size in a uniform direction, and when it ends."""
+    angle = rng.uniform(0.0, 2.0 * math.pi)
+    offset = rng.uniform(*size_m) * np.array([math.sin(angle), math.cos(angle)])
+    return offset, t + rng.uniform(*duration_s)
+
+
+def _replayed_error(spec: DriveSpec, t_s: FloatArray, extra: np.random.Generator) -> (
+        tuple[npt.NDArray[np.bool_], FloatArray] | None):
+    recording = spec.gps_error_replay
+    if recording is None:
+        return None
+    offset = spec.gps_error_replay_offset_s
+    if offset is None:
+        offset = int(extra.integers(recording.duration_s))
+    return replay_error(recording, t_s, offset)
+
+
+def _gps_record(graph: RoadGraph, truth: _Truth, i: int, err: FloatArray, spec: DriveSpec,
+                rng: np.random.Generator, multipath: bool) -> dict[str, Any]:
+    """One fix: the truth (``gps_latency_s`` before ``t``) plus ``err``, and what the
+    receiver reports besides."""
+    e = spec.errors
+    t = float(truth.t[i])
+    if e.gps_latency_s:
+        then = t - e.gps_latency_s
+        x, y, v, h = (float(np.interp(then, truth.t, a))
+                      for a in (truth.x, truth.y, truth.speed, truth.heading))
+    else:
+        x, y, v, h = truth.x[i], truth.y[i], float(truth.speed[i]), truth.heading[i]
+    lon, lat = graph.frame.to_wgs84(x + err[0], y + err[1])
+    speed = max(v + rng.normal(0.0, e.gps_speed_sigma_mps), 0.0)
+    sigma_deg = e.gps_heading_sigma_deg
+    if e.gps_course_sigma_1mps_deg:
+        sigma_deg += e.gps_course_sigma_1mps_deg / max(speed, 0.1)
+    heading = math.degrees(h) + rng.normal(0.0, sigma_deg)
+    if speed < 0.5:
+        heading = rng.uniform(0.0, 360.0)  # a stopped receiver's course wanders
+    record: dict[str, Any] = {"t": round(t, 4), "kind": "gps", "lat": lat, "lon": lon,
+                              "speed_mps": speed, "heading_deg": heading % 360.0,
+                              "hdop": 2.5 if multipath else 1.0, "sats": 8, "fix": "3d"}
+    if not spec.gps_reports_velocity or speed < e.gps_min_speed_for_course_mps:
+        del record["speed_mps"], record["heading_deg"]
+    if not spec.gps_reports_hdop:
+        del record["hdop"]
+    return record

@@ -11,9 +11,11 @@ from typing import Any
 
 import httpx
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
-from websockets.sync.client import ClientConnection, connect
+from websockets.sync.client import connect
 
 from navsvc.errors import NavsvcError
+
+REFUSED = (4401, 4404)  # WebSocket close codes: bad key, unknown session
 
 
 class ServiceError(NavsvcError):
@@ -26,6 +28,7 @@ class StreamResult:
     positions: list[dict[str, Any]] = field(default_factory=list)
     rejected: list[dict[str, Any]] = field(default_factory=list)  # index: position in the file
     accepted: int = 0
+    reconnects: int = 0  # connections that dropped and were made again
 
 
 def create_session(url: str, options: dict[str, Any], api_key: str | None = None) -> str:
@@ -42,39 +45,56 @@ def create_session(url: str, options: dict[str, Any], api_key: str | None = None
 
 def stream_packets(url: str, session_id: str, packets: Sequence[Any], *, batch: int = 10,
                    realtime: bool = False, api_key: str | None = None,
-                   progress: Callable[[int], None] | None = None) -> StreamResult:
-    """Send packets in batches over the session's WebSocket, one reply per batch; with
-    ``realtime`` each batch leaves when its last packet's time has come."""
+                   progress: Callable[[int], None] | None = None,
+                   retries: int = 5) -> StreamResult:
+    """Send packets in numbered batches over the session's WebSocket, one reply per batch;
+    with ``realtime`` each batch leaves when its last packet's time has come.
+
+    When the connection drops, it reconnects (up to ``retries`` times in a row, waiting a
+    little longer each time) and sends the unanswered batch again under the same number: the
+    server applies it once, and answers a resend with its first reply."""
     result = StreamResult(session_id)
     ws_url = url.replace("http", "ws", 1) + f"/v1/sessions/{session_id}/stream"
     headers = {"X-API-Key": api_key} if api_key else {}
-    try:
-        with connect(ws_url, additional_headers=headers, max_size=None) as ws:
-            _stream(ws, packets, batch, realtime, progress, result)
-    except (OSError, ConnectionClosed, InvalidHandshake, TimeoutError) as exc:
-        raise ServiceError(f"{ws_url}: {exc}") from exc
-    return result
-
-
-def _stream(ws: ClientConnection, packets: Sequence[Any], batch: int, realtime: bool,
-            progress: Callable[[int], None] | None, result: StreamResult) -> None:
     start_wall, start_t = time.monotonic(), _first_time(packets)
-    for i in range(0, len(packets), batch):
-        chunk = packets[i:i + batch]
-        if realtime and start_t is not None:
-            last = chunk[-1]
-            t = float(last["t"]) if isinstance(last, dict) and _is_number(last.get("t")) \
-                else start_t
-            time.sleep(max(0.0, start_wall + t - start_t - time.monotonic()))
-        ws.send(json.dumps(chunk))
-        reply = json.loads(ws.recv(timeout=60))
-        if reply["type"] == "error":
-            raise ServiceError(f"batch at packet {i}: {reply['code']}: {reply['message']}")
-        result.accepted += reply["accepted"]
-        result.positions += reply["positions"]
-        result.rejected += [{**r, "index": i + r["index"]} for r in reply["rejected"]]
-        if progress:
-            progress(len(chunk))
+    seq, failures = 0, 0
+    while seq * batch < len(packets):
+        try:
+            with connect(ws_url, additional_headers=headers, max_size=None) as ws:
+                while seq * batch < len(packets):
+                    i = seq * batch
+                    chunk = packets[i:i + batch]
+                    if realtime and start_t is not None:
+                        last = chunk[-1]
+                        t = float(last["t"]) if isinstance(last, dict) and \
+                            _is_number(last.get("t")) else start_t
+                        time.sleep(max(0.0, start_wall + t - start_t - time.monotonic()))
+                    ws.send(json.dumps({"type": "batch", "seq": seq, "packets": chunk}))
+                    reply = json.loads(ws.recv(timeout=60))
+                    if reply["type"] == "error":
+                        raise ServiceError(f"batch at packet {i}: {reply['code']}: "
+                                           f"{reply['message']}")
+                    result.accepted += reply["accepted"]
+                    result.positions += reply["positions"]
+                    result.rejected += [{**r, "index": i + r["index"]}
+                                        for r in reply["rejected"]]
+                    seq, failures = seq + 1, 0
+                    if progress:
+                        progress(len(chunk))
+        except InvalidHandshake as exc:
+            raise ServiceError(f"{ws_url}: {exc}") from exc
+        except (OSError, ConnectionClosed, TimeoutError) as exc:
+            closed = exc.rcvd if isinstance(exc, ConnectionClosed) else None
+            if closed is not None and closed.code in REFUSED:  # no use trying again
+                raise ServiceError(f"{ws_url}: refused ({closed.code}): {closed.reason}"
+                                   ) from exc
+            failures += 1
+            result.reconnects += 1
+            if failures > retries:
+                raise ServiceError(f"{ws_url}: {exc} (gave up after {retries} retries)"
+                                   ) from exc
+            time.sleep(min(5.0, 0.2 * 2 ** failures))
+    return result
 
 
 def _is_number(value: Any) -> bool:

@@ -2,6 +2,8 @@
 
 The checksum (XOR of the characters between ``$`` and ``*``) must match when present. Any
 talker id is accepted (GP, GN, GL, ...). Time comes from the packet's ``t``, not the sentence.
+A sentence is ASCII text of at most ``MAX_SENTENCE_CHARS`` (the standard's limit is 82) and its
+numbers must be finite.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from navsvc.errors import PacketError, RejectReason
 from navsvc.types import GpsFix, GpsFixType, GpsVelocity
 
 KNOT_MPS = 1852.0 / 3600.0
+MAX_SENTENCE_CHARS = 256
 _GGA_QUALITY = {0: GpsFixType.NONE, 1: GpsFixType.FIX_3D, 2: GpsFixType.DGPS,
                 4: GpsFixType.RTK, 5: GpsFixType.DGPS, 6: GpsFixType.NONE}
 
@@ -25,6 +28,11 @@ def checksum(body: str) -> int:
 
 def parse_sentence(sentence: str, t: float) -> GpsFix | GpsVelocity:
     """Parse one sentence; raise PacketError naming what is wrong."""
+    if len(sentence) > MAX_SENTENCE_CHARS:
+        raise PacketError(RejectReason.MALFORMED,
+                          f"sentence is {len(sentence)} characters (at most {MAX_SENTENCE_CHARS})")
+    if not sentence.isascii():
+        raise PacketError(RejectReason.MALFORMED, "an NMEA sentence is ASCII text")
     text = sentence.strip()
     if not text.startswith(("$", "!")) or len(text) < 7:
         raise PacketError(RejectReason.MALFORMED, f"not an NMEA sentence: {text[:20]!r}")
@@ -65,7 +73,12 @@ def _coordinate(value: str, hemisphere: str, degree_digits: int) -> float:
 
 
 def _optional(value: str) -> float | None:
-    return float(value) if value else None
+    if not value:
+        return None
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{value!r} is not a finite number")
+    return number
 
 
 def _gga(f: list[str], t: float) -> GpsFix:

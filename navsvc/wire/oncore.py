@@ -32,6 +32,7 @@ from navsvc.errors import PacketError, RejectReason
 from navsvc.types import GpsFix, GpsFixType
 
 MESSAGE_LENGTH = 68
+MAX_HEX_CHARS = 1024  # of the hex text, which may space its bytes
 _BODY = struct.Struct(">BBHBBBIiiiiHHHBBB24sB")  # from month to the status byte
 _MAS_PER_DEG = 3_600_000.0
 
@@ -66,14 +67,20 @@ def checksum(payload: bytes) -> int:
 
 def parse_ba(hex_text: str, t: float) -> GpsFix:
     """Decode one hex-encoded ``@@Ba`` message; raise PacketError naming what is wrong."""
+    if len(hex_text) > MAX_HEX_CHARS:
+        raise PacketError(RejectReason.MALFORMED,
+                          f"hex is {len(hex_text)} characters (at most {MAX_HEX_CHARS})")
     try:
         raw = bytes.fromhex(hex_text.strip())
     except ValueError:
         raise PacketError(RejectReason.MALFORMED, "hex: not a hexadecimal string") from None
-    if raw[:4] != b"@@Ba":
+    if len(raw) >= 4 and raw[:4] != b"@@Ba":
         raise PacketError(RejectReason.UNSUPPORTED_SENTENCE,
                           f"expected an @@Ba message, got {raw[:4]!r}")
-    if len(raw) != MESSAGE_LENGTH:
+    if len(raw) < MESSAGE_LENGTH:
+        raise PacketError(RejectReason.MALFORMED, f"Oncore @@Ba message too short: "
+                          f"{len(raw)} bytes, needs {MESSAGE_LENGTH}")
+    if len(raw) > MESSAGE_LENGTH:
         raise PacketError(RejectReason.MALFORMED,
                           f"@@Ba is {MESSAGE_LENGTH} bytes, got {len(raw)}")
     if raw[-2:] != b"\r\n":

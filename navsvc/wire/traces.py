@@ -64,6 +64,11 @@ def parse_trace(text: str, fmt: str, name: str = "trace") -> list[TraceFix]:
     readers = {"gpx": _gpx, "geojson": _geojson, "csv": _csv, "jsonl": _jsonl}
     if fmt not in readers:
         raise TraceError(f"{name}: unknown trace format {fmt!r} (known: {', '.join(FORMATS)})")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:  # a lone surrogate, as JSON's \ud800 can carry
+        raise TraceError(f"{name}: not valid Unicode text at character {exc.start} "
+                         f"({exc.reason})") from None
     fixes = readers[fmt](text, name)
     if not fixes:
         raise TraceError(f"{name}: the trace has no points")

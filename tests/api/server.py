@@ -46,18 +46,20 @@ class Server:
                 self.kill()
 
 
-def start_server(db: Path, log: Path, env: dict[str, str] | None = None) -> Server:
-    """``python -m navsvc serve --map DB`` on a free loopback port; returns once healthy."""
+def start_server(db: Path, log: Path, env: dict[str, str] | None = None,
+                 port: int | None = None) -> Server:
+    """``python -m navsvc serve --map DB`` on a loopback port (a free one unless given);
+    returns once healthy."""
     return start_process(lambda port: [
         sys.executable, "-m", "navsvc", "serve", "--map", str(db), "--host", "127.0.0.1",
-        "--port", str(port)], log, env)
+        "--port", str(port)], log, env, port)
 
 
 def start_process(command: Callable[[int], list[str]], log: Path,
-                  env: dict[str, str] | None = None) -> Server:
-    """A server ``command(port)`` on a free loopback port; returns once ``/v1/healthz``
-    answers."""
-    port = free_port()
+                  env: dict[str, str] | None = None, port: int | None = None) -> Server:
+    """A server ``command(port)`` on a loopback port (a free one unless given); returns once
+    ``/v1/healthz`` answers."""
+    port = port or free_port()
     out = log.open("ab")
     process = subprocess.Popen(command(port), stdout=out, stderr=subprocess.STDOUT,
                                env={**os.environ, **(env or {})})

@@ -3,13 +3,20 @@
 from __future__ import annotations
 
 import json
+import shutil
+import threading
 from pathlib import Path
 
 import pytest
 
 from navsvc.cli import main
+from navsvc.session import SessionConfig, VehicleSession
+from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+from navsvc.wire.client import StreamResult, create_session, stream_packets
 from navsvc.wire.jsonl import read_records
-from tests.api.server import Server, free_port
+from navsvc.wire.positions import position_json
+from roadgraph import RoadGraph
+from tests.api.server import Server, free_port, start_server
 
 
 def test_send_a_simulated_drive_and_evaluate_it(server: Server, sample_db: Path, tmp_path: Path,
@@ -35,3 +42,42 @@ def test_send_to_nothing_is_a_clear_error(tmp_path: Path,
     url = f"http://127.0.0.1:{free_port()}"
     assert main(["send", str(drive), "--url", url, "--quiet"]) == 1
     assert f"navsvc: error: {url}: cannot connect" in capsys.readouterr().err
+
+
+def test_send_survives_a_server_crash_without_losing_or_doubling_a_packet(
+        sample_db: Path, sample_graph: RoadGraph, tmp_path: Path) -> None:
+    """The client resends the unanswered batch under its number after reconnecting: whether
+    the crashed server had logged it or not, it is applied exactly once."""
+    db = tmp_path / "monaco.db"
+    shutil.copy(sample_db, db)
+    kinds = set(SENSOR_KINDS["gyro_odometer"])
+    packets = [r for r in simulate_drive(sample_graph, DriveSpec(duration_s=90.0, seed=4))
+               if r["kind"] in kinds]
+    first = start_server(db, tmp_path / "server.log")
+    port = int(first.url.rsplit(":", 1)[1])
+    sid = create_session(first.url, {"vehicle_id": "crash"})
+    sent = threading.Event()
+    results: list[StreamResult] = []
+
+    def progress(count: int) -> None:
+        sent.set()
+
+    sender = threading.Thread(target=lambda: results.append(stream_packets(
+        first.url, sid, packets, batch=20, progress=progress)))
+    sender.start()
+    assert sent.wait(timeout=60)
+    first.kill()
+    second = start_server(db, tmp_path / "server.log", port=port)
+    try:
+        sender.join(timeout=120)
+        (result,) = results
+        assert result.reconnects >= 1
+        assert result.accepted == len(packets) and result.rejected == []
+        info = second.client().get(f"/sessions/{sid}").json()
+        assert info["packets_accepted"] == len(packets)
+        offline = VehicleSession(SessionConfig(), sample_graph)
+        offline.add_records(packets)
+        assert offline.last_position is not None
+        assert info["position"] == position_json(offline.last_position, sample_graph.frame)
+    finally:
+        second.stop()

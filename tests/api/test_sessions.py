@@ -68,7 +68,8 @@ def test_position_before_and_after_the_first_fix(client: httpx.Client) -> None:
     s = new_session(client, sensors="gps_only")
     r = client.get(f"/sessions/{s['id']}/position")
     assert r.status_code == 404 and "no position yet" in r.json()["error"]["message"]
-    fixes = [{**GPS, "t": float(i), "lat": 43.7384 + 1e-4 * i, "speed_mps": 11.0} for i in range(5)]
+    fixes = [{**GPS, "t": float(i), "lat": 43.7384 + 1e-4 * i, "speed_mps": 11.0,
+              "heading_deg": 0.0} for i in range(5)]
     out = client.post(f"/sessions/{s['id']}/packets", json=fixes).json()
     assert out["accepted"] == 5 and out["positions"]
     p = client.get(f"/sessions/{s['id']}/position").json()
@@ -82,7 +83,7 @@ def test_body_that_is_not_an_array(client: httpx.Client) -> None:
     assert r.status_code == 422
     r = client.post(f"/sessions/{s['id']}/packets", content=b"[{",
                     headers={"content-type": "application/json"})
-    assert r.status_code == 422 and "JSON" in r.json()["error"]["message"]
+    assert r.status_code == 400 and "JSON" in r.json()["error"]["message"]
 
 
 def test_unknown_session(client: httpx.Client) -> None:

@@ -1,5 +1,6 @@
 """Oncore @@Ba frames built byte by byte from the layout in the seed's appendix C."""
 
+import json
 import math
 import struct
 from functools import reduce
@@ -10,7 +11,7 @@ from hypothesis import strategies as st
 
 from navsvc.errors import PacketError
 from navsvc.types import GpsFix, GpsFixType
-from navsvc.wire.packets import parse
+from navsvc.wire.packets import parse, parse_record
 
 GOOD_STATUS = 0x30  # 2D and 3D fix, nothing bad
 
@@ -62,7 +63,8 @@ def test_differential_bit_means_dgps() -> None:
 
 @pytest.mark.parametrize(("frame", "code", "fragment"), [
     (ba_frame()[:-3] + bytes([ba_frame()[-3] ^ 1]) + b"\r\n", "bad_checksum", "computed"),
-    (ba_frame()[:40], "malformed", "68 bytes"),
+    (ba_frame()[:40], "malformed", "Oncore @@Ba message too short: 40 bytes, needs 68"),
+    (ba_frame() + b"\0", "malformed", "@@Ba is 68 bytes, got 69"),
     (b"@@Ea" + ba_frame()[4:], "unsupported_sentence", "@@Ba"),
     (ba_frame(heading_deg=400.0), "out_of_range", "heading"),
 ])
@@ -87,7 +89,7 @@ def test_random_bytes_never_crash(data: bytes) -> None:
         pass
 
 
-@given(st.floats(-89.9, 89.9), st.floats(-179.9, 179.9), st.floats(0, 500),
+@given(st.floats(-89.9, 89.9), st.floats(-179.9, 179.9), st.floats(0, 100),
        st.floats(0, 359.9))
 def test_round_trip(lat: float, lon: float, speed: float, heading: float) -> None:
     p = parse({"t": 0, "kind": "oncore",
@@ -95,3 +97,31 @@ def test_round_trip(lat: float, lon: float, speed: float, heading: float) -> Non
     assert isinstance(p, GpsFix)
     assert p.lat_deg == pytest.approx(lat, abs=1e-6) and p.lon_deg == pytest.approx(lon, abs=1e-6)
     assert p.speed_mps == pytest.approx(speed, abs=0.006)
+
+
+def test_speeds_are_held_to_the_json_packets_range() -> None:
+    """@@Ba can say up to 514 m/s; a car's fix above the JSON packet's 100 m/s is refused."""
+    with pytest.raises(PacketError, match="speed_mps"):
+        parse({"t": 0, "kind": "oncore", "hex": ba_frame(speed_mps=150.0).hex()})
+
+
+@pytest.mark.parametrize(("hex_text", "n"), [("", 0), ("40", 1), ("404042", 3)])
+def test_too_short_message_is_not_an_unsupported_sentence(hex_text: str, n: int) -> None:
+    with pytest.raises(PacketError) as info:
+        parse({"t": 0, "kind": "oncore", "hex": hex_text})
+    assert info.value.reason.code == "malformed"
+    assert info.value.detail == f"Oncore @@Ba message too short: {n} bytes, needs 68"
+
+
+def test_spaced_hex_is_read() -> None:
+    spaced = " ".join(f"{b:02x}" for b in ba_frame())
+    assert len(spaced) <= 1024
+    assert parse({"t": 0, "kind": "oncore", "hex": spaced}) == \
+        parse({"t": 0, "kind": "oncore", "hex": ba_frame().hex()})
+
+
+def test_parse_record_of_oncore_is_t_kind_hex() -> None:
+    obj = {"t": 2, "kind": "oncore", "hex": ba_frame().hex(), "channel": [[1]]}
+    packet, record = parse_record(obj)
+    assert record == {"t": 2, "kind": "oncore", "hex": ba_frame().hex()}
+    assert parse(json.loads(json.dumps(record))) == packet

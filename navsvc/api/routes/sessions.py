@@ -6,11 +6,11 @@ import sqlite3
 import time
 from typing import Any
 
-from fastapi import APIRouter, Body, HTTPException, Response
+from fastapi import APIRouter, Body, HTTPException, Query, Response
 
 from navsvc.api.deps import AppState, OwnerDep, StateDep
 from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
-from navsvc.session import BatchResult, LiveSession
+from navsvc.session import LiveSession
 from navsvc.wire.positions import position_json
 
 router = APIRouter(prefix="/sessions", tags=["sessions"],
@@ -26,30 +26,26 @@ def session_info(state: AppState, s: LiveSession) -> SessionInfo:
 
 
 def ingest(state: AppState, session: LiveSession, packets: list[Any],
-           packets_json: str | None = None) -> dict[str, Any]:
-    """Apply a batch (API and WebSocket alike), count it, and describe the result as the
-    JSON of a :class:`BatchReply` (``packets_json``: the batch's JSON array as received, for
-    the trip log). A plain dict: the WebSocket sends it as it is, and building and dumping
-    the model for each message cost more than the rest of its reply."""
+           client_seq: int | None = None) -> dict[str, Any]:
+    """Apply a batch (API and WebSocket alike), count it, and return its reply, the JSON of
+    a :class:`BatchReply`."""
     limit = state.settings.max_batch_packets
     if len(packets) > limit:
         raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
     start = time.perf_counter()
     try:
-        result: BatchResult = state.store.ingest(session, packets, packets_json)
+        done = state.store.ingest(session, packets, client_seq)
     except sqlite3.Error as exc:
         raise HTTPException(503, f"the trip log cannot be written ({exc}); the batch was not "
                                  "applied, send it again") from exc
-    frame = state.graph.frame
-    positions = [position_json(p, frame) for p in result.positions]
     m = state.metrics
-    m.batch_seconds.observe(time.perf_counter() - start)
-    m.packets_accepted.inc(result.accepted)
-    for r in result.rejections:
-        m.packets_rejected.labels(r.reason.code).inc()
-    m.positions.inc(len(positions))
-    return {"accepted": result.accepted, "rejected": [r.to_json() for r in result.rejections],
-            "positions": positions}
+    if done.result is not None:  # not a resend answered from memory
+        m.batch_seconds.observe(time.perf_counter() - start)
+        m.packets_accepted.inc(done.result.accepted)
+        for r in done.result.rejections:
+            m.packets_rejected.labels(r.reason.code).inc()
+        m.positions.inc(len(done.result.positions))
+    return done.reply
 
 
 @router.post("", status_code=201, response_model=SessionInfo,
@@ -81,7 +77,8 @@ async def delete_session(session_id: str, state: StateDep, owner: OwnerDep) -> R
 
 
 @router.post("/{session_id}/packets", response_model=BatchReply,
-             responses={413: {"model": ErrorBody}, 422: {"model": ErrorBody}})
+             responses={409: {"model": ErrorBody}, 413: {"model": ErrorBody},
+                        422: {"model": ErrorBody}})
 async def post_packets(
     session_id: str, state: StateDep, owner: OwnerDep,
     packets: list[Any] = Body(  # noqa: B008 (FastAPI's way to declare a bare array body)
@@ -89,9 +86,15 @@ async def post_packets(
                     "alone and reported by index", examples=[[
                         {"t": 0.0, "kind": "gps", "lat": 43.7384, "lon": 7.4246},
                         {"t": 0.01, "kind": "imu", "yaw_rate_dps": 1.5}]]),
+    batch_seq: int | None = Query(  # noqa: B008
+        None, ge=0, le=2**53,
+        description="the client's number for this batch, increasing per session: a batch "
+                    "sent again with the same number (say, after a lost reply) is not applied "
+                    "twice but answered with its first reply plus \"duplicate\": true; "
+                    "409 when that reply is no longer kept (the last 64 are)"),
 ) -> dict[str, Any]:
     """Apply packets in order; the reply comes once the accepted ones are in the trip log."""
-    return ingest(state, state.store.get(session_id, owner), packets)
+    return ingest(state, state.store.get(session_id, owner), packets, batch_seq)
 
 
 @router.get("/{session_id}/position", responses={200: {"description": "matched position"}})

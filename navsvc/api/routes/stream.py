@@ -1,11 +1,15 @@
 """WebSocket ``/sessions/{id}/stream``: packets in, matched positions and errors out.
 
-Client messages: one packet object, an array of packets, or ``{"type": "ping"}``. For each
-message the server sends ``{"type": "result", "accepted", "rejected", "positions"}`` (the
-reply of ``POST /packets``), or ``{"type": "error", "code", "message"}`` when the message
-itself is unusable, or ``{"type": "pong"}``. The API key goes in the ``X-API-Key`` header or,
-for browsers, the ``api_key`` query parameter. An unknown session closes the socket with code
-4404, a missing or wrong key with 4401 (the reason says which).
+Client messages: one packet object, an array of packets, a numbered batch
+``{"type": "batch", "seq": N, "packets": [...]}`` (``seq`` as ``batch_seq`` of ``POST
+/packets``: a resend is answered with the first reply, ``"duplicate": true``, and not applied
+again), or ``{"type": "ping"}``. For each message the server sends ``{"type": "result",
+"accepted", "rejected", "positions"}`` (the reply of ``POST /packets``, with ``"seq"`` for a
+numbered batch), or ``{"type": "error", "code", "message"}`` when the message itself is
+unusable (not JSON, not UTF-8, too deep, too many packets, ...), or ``{"type": "pong"}``. The
+API key goes in the ``X-API-Key`` header or, for browsers, the ``api_key`` query parameter
+(never written to the server's log). An unknown session closes the socket with code 4404, a
+missing or wrong key with 4401 (the reason says which).
 
 Slow readers: replies wait in a queue of ``NAVSVC_WS_QUEUE`` messages; when it is full the
 oldest waiting reply is dropped (a newer one holds the newer positions), the next reply sent
@@ -18,13 +22,14 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+from collections.abc import Mapping
 from typing import Any
 
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
 from navsvc.api.deps import API_KEY_HEADER, AppState, check_key, websocket_state
 from navsvc.api.routes.sessions import ingest
-from navsvc.errors import SessionNotFound
+from navsvc.errors import BatchAlreadyApplied, SessionNotFound
 
 router = APIRouter(tags=["sessions"])
 log = logging.getLogger(__name__)
@@ -72,8 +77,10 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
     sender = asyncio.create_task(replies.send_all(websocket))
     try:
         while True:
-            text = await websocket.receive_text()
-            replies.put(_answer(state, session_id, owner, text))
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            replies.put(_answer(state, session_id, owner, message))
             await asyncio.sleep(0)  # let the sender run between messages
     except WebSocketDisconnect:
         pass
@@ -81,23 +88,47 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
         sender.cancel()
 
 
-def _answer(state: AppState, session_id: str, owner: str, text: str) -> dict[str, Any]:
+MAX_SEQ = 2**53
+
+
+def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
+            ) -> dict[str, Any]:
+    """The reply to one WebSocket frame; never raises."""
+    text = frame.get("text")
+    if text is None:
+        try:
+            text = (frame.get("bytes") or b"").decode()
+        except UnicodeDecodeError:
+            return _error("malformed", "binary message is not UTF-8 JSON text")
     try:
         message = json.loads(text)
-    except json.JSONDecodeError as exc:
-        return _error("malformed", f"message is not JSON: {exc}")
+    except (ValueError, RecursionError) as exc:  # also too deep, or an integer too long
+        return _error("malformed", f"message is not usable JSON: {str(exc)[:200]}")
     if isinstance(message, dict) and message.get("type") == "ping":
         return {"type": "pong"}
-    packets, packets_json = (message, text) if isinstance(message, list) else \
-        ([message], f"[{text}]")
+    seq = None
+    if isinstance(message, dict) and message.get("type") == "batch":
+        seq, packets = message.get("seq"), message.get("packets")
+        if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq <= MAX_SEQ:
+            return _error("malformed", f"batch seq must be an integer from 0 to {MAX_SEQ}")
+        if not isinstance(packets, list):
+            return _error("malformed", "batch packets must be an array")
+    else:
+        packets = message if isinstance(message, list) else [message]
     try:
         session = state.store.get(session_id, owner)  # it may have expired meanwhile
-        reply = ingest(state, session, packets, packets_json)
+        reply = ingest(state, session, packets, seq)
     except SessionNotFound as exc:
         return _error("session_not_found", str(exc))
+    except BatchAlreadyApplied as exc:
+        return _error("batch_already_applied", str(exc))
     except HTTPException as exc:
         return _error(_HTTP_CODES.get(exc.status_code, "error"), str(exc.detail))
-    return {"type": "result", **reply}
+    except Exception:  # a fault of ours: say so, and keep serving the connection
+        log.exception("session %s: message could not be handled", session_id)
+        return _error("internal", "the server could not handle this message")
+    return {"type": "result", **reply} if seq is None else {"type": "result", "seq": seq,
+                                                             **reply}
 
 
 _HTTP_CODES = {413: "too_many_packets", 503: "unavailable"}

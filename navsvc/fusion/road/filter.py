@@ -65,6 +65,8 @@ from navsvc.types import (
 )
 from roadgraph.geometry import LocalFrame, bearing_rad
 
+MAX_PLAUSIBLE_SPEED_MPS = 70.0  # two fixes implying more are not the same car's track
+
 
 @dataclass
 class RoadState:
@@ -74,12 +76,17 @@ class RoadState:
     P: Array = field(default_factory=lambda: np.eye(N_STATES))
     t: float | None = None  # time of x
     initialized: bool = False
-    first_fix: tuple[float, float, float] | None = None  # (t, x, y) awaiting a heading
+    first_fix: tuple[float, float, float, float] | None = None  # (t, x, y, sigma) awaiting a
+    # heading
+    odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
     last_odo: odometer.Window | None = None  # odometer speed window start
     last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
     still_samples: int = 0
     accel_fwd_mps2: float | None = None  # last forward acceleration (configs 3 and 4)
-    gated_fixes: int = 0  # consecutive GPS fixes not fused
+    gated_fixes: int = 0  # consecutive GPS fixes refused by the gate
+    first_gated_t: float | None = None  # when the current run of refused fixes began
+    gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
+    gps_bias_var_m2: float = 0.0  # variance of the GPS error the filter cannot average out
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     last_gps_t: float | None = None
     last_output_t: float | None = None
@@ -172,7 +179,11 @@ class RoadFilter:
 
     def _update(self, m: Measurement[Array], gate_dof: int | None = None) -> float | None:
         """Kalman update; with ``gate_dof``, refuse (return None) past the chi-square gate."""
-        z, h, H, R = m.model(self.state.x)
+        return self._update_linearised(m.model(self.state.x), gate_dof)
+
+    def _update_linearised(self, m: Linearised, gate_dof: int | None = None) -> float | None:
+        """:meth:`_update` of a measurement already taken at the state."""
+        z, h, H, R = m
         s = self.state
         limit = math.inf if gate_dof is None else \
             kalman.gate_limit(gate_dof, self.config.gps_gate_scale)
@@ -180,6 +191,8 @@ class RoadFilter:
         if not nis <= limit:
             return None
         s.x[HEADING] %= 2.0 * math.pi
+        low, high = self.config.odo_scale_limits
+        s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
         return nis
 
     # --- dead reckoning ------------------------------------------------------------------
@@ -209,6 +222,7 @@ class RoadFilter:
             s.still_samples = 0
         speed = self._odometer_speed(packet)
         if speed is not None:
+            s.odo_speed_mps = speed
             self._update(OdometerSpeed(speed, cfg.odometer_sigma_mps))
 
     def _odometer_still(self, packet: OdometerSample) -> bool:
@@ -227,7 +241,9 @@ class RoadFilter:
     def _remember_odometer(self, packet: Packet) -> None:
         if isinstance(packet, OdometerSample):
             self._odometer_still(packet)
-            self._odometer_speed(packet)
+            speed = self._odometer_speed(packet)
+            if speed is not None:
+                self.state.odo_speed_mps = speed
         self.state.t = packet.t if self.state.t is None else max(self.state.t, packet.t)
 
     # --- GPS -----------------------------------------------------------------------------
@@ -243,6 +259,9 @@ class RoadFilter:
         return gps_sigma_m(fix, self.config.gps_uere_m, self.config.gps_default_sigma_m)
 
     def _try_initialize(self, fix: GpsFix) -> None:
+        """Start once the heading is known: from the GPS course when fast enough for it to
+        mean something, else from the bearing between two fixes a long way apart against
+        their error. Each starting value gets the variance of how it was obtained."""
         s, cfg = self.state, self.config
         bad = self._problem(fix)
         s.t = fix.t if s.t is None else max(s.t, fix.t)
@@ -250,28 +269,57 @@ class RoadFilter:
             s.gps = GpsUsage(False, 0.0, bad)
             return
         east, north = self._local(fix)
-        heading, speed = None, fix.speed_mps
-        if fix.heading_rad is not None and (fix.speed_mps or 0.0) >= \
-                cfg.min_speed_for_gps_heading_mps:
-            heading = fix.heading_rad
-        elif s.first_fix is not None and fix.t > s.first_fix[0]:
-            t0, e0, n0 = s.first_fix
-            moved = math.hypot(east - e0, north - n0)
-            if moved >= cfg.initial_heading_min_move_m:
-                heading = bearing_rad(e0, n0, east, north)
-                speed = speed if speed is not None else moved / (fix.t - t0)
+        sigma = self._sigma_m(fix)
+        heading = self._gps_course(fix)
+        speed = self._measured_speed(fix)
+        first = s.first_fix
+        if heading is None and first is not None and fix.t > first[0]:
+            t0, e0, n0, sigma0 = first
+            moved, spread = math.hypot(east - e0, north - n0), math.hypot(sigma, sigma0)
+            if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing():
+                first = None  # an outlier, or the fixes of a car standing still: start over
+            elif moved >= max(cfg.initial_heading_min_move_m,
+                              cfg.initial_heading_min_move_sigmas * spread):
+                heading = bearing_rad(e0, n0, east, north), (spread / moved) ** 2
+                if speed is None:
+                    speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
-            if s.first_fix is None or math.hypot(east - s.first_fix[1],
-                                                 north - s.first_fix[2]) > 50.0:
-                s.first_fix = (fix.t, east, north)
+            s.first_fix = first or (fix.t, east, north, sigma)
             s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
             return
-        self._reset_from_gps(fix, east, north, heading, speed or 0.0)
+        self._reset_from_gps(fix, east, north, heading,
+                             speed or (0.0, cfg.initial_speed_sigma_mps ** 2))
         s.initialized = True
+        s.first_fix = None
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
 
-    def _reset_from_gps(self, fix: GpsFix, east: float, north: float, heading: float | None,
-                        speed: float | None) -> None:
+    def _standing(self) -> bool:
+        """The odometer says the car stands still (GPS fixes then only wander)."""
+        return self.state.odo_speed_mps == 0.0
+
+    def _measured_speed(self, fix: GpsFix) -> tuple[float, float] | None:
+        """Speed and its variance from the odometer when there is one, else the GPS."""
+        cfg, s = self.config, self.state
+        if s.odo_speed_mps is not None and OdometerSpeed in self.profile.measurements:
+            v = s.odo_speed_mps
+            return v, cfg.odometer_sigma_mps ** 2 + (cfg.initial_odo_scale_sigma * v) ** 2
+        if fix.speed_mps is not None:
+            return fix.speed_mps, cfg.gps_velocity_sigma_mps ** 2
+        return None
+
+    def _gps_course(self, fix: GpsFix) -> tuple[float, float] | None:
+        """The GPS course and its variance, when the receiver is fast enough for it to mean
+        something (its error grows as the speed falls)."""
+        cfg, speed = self.config, fix.speed_mps or 0.0
+        if fix.heading_rad is None or speed < cfg.min_speed_for_gps_heading_mps:
+            return None
+        sigma = max(math.radians(2.0), math.atan2(cfg.gps_velocity_sigma_mps, speed))
+        return fix.heading_rad, sigma ** 2
+
+    def _reset_from_gps(self, fix: GpsFix, east: float, north: float,
+                        heading: tuple[float, float] | None,
+                        speed: tuple[float, float] | None) -> None:
+        """Position from the fix; heading and speed, with their variances, when given."""
         s, cfg = self.state, self.config
         sigma = self._sigma_m(fix)
         s.x[X_M], s.x[Y_M] = east, north
@@ -279,11 +327,11 @@ class RoadFilter:
         s.P[:, [X_M, Y_M]] = 0.0
         s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma ** 2
         if heading is not None:
-            s.x[HEADING] = heading % (2.0 * math.pi)
-            _reset_variance(s.P, HEADING, math.radians(10.0) ** 2)
+            s.x[HEADING] = heading[0] % (2.0 * math.pi)
+            _reset_variance(s.P, HEADING, heading[1])
         if speed is not None:
-            s.x[SPEED] = speed
-            _reset_variance(s.P, SPEED, 1.0)
+            s.x[SPEED] = speed[0]
+            _reset_variance(s.P, SPEED, speed[1])
         if not s.initialized:
             s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, 0.0, 1.0
             for i, var in ((HEADING_RATE, 0.1 ** 2),
@@ -291,7 +339,7 @@ class RoadFilter:
                            (ODO_SCALE, cfg.initial_odo_scale_sigma ** 2),
                            (ACCEL_BIAS, 0.1 ** 2)):
                 _reset_variance(s.P, i, var)
-        s.gated_fixes = 0
+        s.gated_fixes, s.first_gated_t = 0, None
 
     def _fuse_gps(self, fix: GpsFix) -> None:
         s = self.state
@@ -302,29 +350,71 @@ class RoadFilter:
             s.gps = GpsUsage(False, 0.0, bad)
             return
         if self.config.gps_mode == GpsMode.EKF:
-            self._fuse_gps_ekf(fix)
+            self._fuse_gps_ekf(fix, dt)
         else:
             self._fuse_gps_weighted(fix, dt)
 
-    def _fuse_gps_ekf(self, fix: GpsFix) -> None:
+    def _fuse_gps_ekf(self, fix: GpsFix, dt_s: float) -> None:
+        """A fix, weighted by how well it agrees (innovation NIS).
+
+        - Its sigma is learnt: scaled up when the fixes have been further off than their
+          sigmas say (HDOP x UERE is optimistic in a street canyon); fixes faster than one a
+          second are not taken as independent (their errors are one slowly changing error).
+        - Past ``gps_huber_nis`` it pulls as a fix at that NIS would (Huber), so that a run of
+          biased fixes is down-weighted, not followed.
+        - Past the chi-square gate it is refused, but still pulls as one at the Huber limit;
+          when fixes keep being refused the position variance widens by a fix's variance a
+          second, so that fixes which agree with each other are taken within seconds; after
+          ``reacquire_after_gated_s`` the filter starts over from GPS.
+        - ``gps_bias_share`` of the sigma is an error no averaging removes: it is added to the
+          reported position covariance, not to the filter's (that would make it follow GPS
+          noise)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        nis = self._update(GpsPosition(east, north, self._sigma_m(fix)), gate_dof=2)
-        if nis is None:
-            s.gated_fixes += 1
-            if s.gated_fixes >= cfg.reinit_after_gated_fixes:
-                self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
-                s.gps = GpsUsage(True, 1.0, "re-initialised: estimate far from GPS too long")
-            else:
-                s.gps = GpsUsage(False, 0.0, "gated: innovation too large")
+        sigma = self._gps_sigma_learnt(fix) * math.sqrt(max(1.0, 1.0 / max(dt_s, 1e-3)))
+        z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
+        y = z - h
+        nis = float(y @ np.linalg.solve(H @ s.P @ H.T + R, y))
+        if math.isfinite(nis):
+            memory = cfg.gps_nis_memory_fixes * max(1.0, 1.0 / max(dt_s, 1e-3))
+            s.gps_nis_mean += (min(nis, 10.0 * cfg.gps_huber_nis) - s.gps_nis_mean) / memory
+        if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
+            self._refused_fix(fix, east, north, (z, h, H, R), nis, min(dt_s, 1.0))
             return
-        s.gated_fixes = 0
-        heading = self._gps_heading(fix)
-        if heading is not None and fix.speed_mps is not None:
-            self._fuse_gps_course(heading, fix.speed_mps)
+        weight = min(1.0, cfg.gps_huber_nis / nis) if nis > 0.0 else 1.0
+        self._update_linearised((z, h, H, R / weight))
+        s.gps_bias_var_m2 = (cfg.gps_bias_share * self._gps_sigma_learnt(fix)) ** 2
+        s.gated_fixes, s.first_gated_t = 0, None
+        course = self._gps_course(fix)
+        if course is not None and fix.speed_mps is not None:
+            self._fuse_gps_course(course[0], fix.speed_mps)
         elif self.profile.gps_alone and fix.speed_mps is not None and fix.speed_mps < 0.5:
             self._update(ZeroMotion(sigma_mps=0.3, sigma_rps=0.05))
-        s.gps = GpsUsage(True, 1.0, "accepted", nis=nis)
+        s.gps = GpsUsage(True, weight, "accepted" if weight == 1.0 else "down-weighted",
+                         nis=nis)
+
+    def _gps_sigma_learnt(self, fix: GpsFix) -> float:
+        """The fix's sigma, scaled by the running mean of the NIS (innovation-based
+        adaptation: 2 is the mean when the sigmas are right)."""
+        return self._sigma_m(fix) * math.sqrt(max(1.0, self.state.gps_nis_mean / 2.0))
+
+    def _refused_fix(self, fix: GpsFix, east: float, north: float, m: Linearised,
+                     nis: float, dt_s: float) -> None:
+        s, cfg = self.state, self.config
+        z, h, H, R = m
+        s.gated_fixes += 1
+        s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
+        if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
+            s.initialized = False  # heading and speed are not to be trusted either
+            s.first_fix = (fix.t, east, north, self._sigma_m(fix))
+            s.gps = GpsUsage(False, 0.0, "re-acquiring: estimate far from GPS too long")
+            return
+        weight = cfg.gps_huber_nis / nis
+        self._update_linearised((z, h, H, R / weight))
+        if s.gated_fixes >= cfg.inflate_after_gated_fixes:
+            s.P[X_M, X_M] += R[0, 0] * dt_s
+            s.P[Y_M, Y_M] += R[1, 1] * dt_s
+        s.gps = GpsUsage(True, weight, "down-weighted: innovation too large", nis=nis)
 
     def _fuse_gps_velocity(self, v: GpsVelocityPacket) -> None:
         """A velocity-only GPS message (NMEA VTG): course and speed when moving."""
@@ -347,10 +437,6 @@ class RoadFilter:
             _reset_variance(s.P, HEADING, math.radians(10.0) ** 2)
             _reset_variance(s.P, SPEED, 1.0)
             s.gated_courses = 0
-
-    def _gps_heading(self, fix: GpsFix) -> float | None:
-        fast = (fix.speed_mps or 0.0) >= self.config.min_speed_for_gps_heading_mps
-        return fix.heading_rad if fast and fix.heading_rad is not None else None
 
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
         s, cfg = self.state, self.config
@@ -376,14 +462,15 @@ class RoadFilter:
             return
         s.gated_fixes = 0
         if d.action in (GpsAction.REINITIALIZE, GpsAction.INITIALIZE):
-            self._reset_from_gps(fix, east, north, self._gps_heading(fix), fix.speed_mps)
+            self._reset_from_gps(fix, east, north, self._gps_course(fix),
+                                 self._measured_speed(fix))
             s.gps = GpsUsage(True, 1.0, d.reason)
             return
         self._blend(GpsPosition(east, north, self._sigma_m(fix)).model(s.x), d.position_weight)
-        heading = self._gps_heading(fix)
-        if heading is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
+        course = self._gps_course(fix)
+        if course is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
             # weighted sum of heading (wrapped) and speed with the GPS course and speed
-            self._blend(CourseAndSpeed(heading, fix.speed_mps, math.radians(5.0),
+            self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.radians(5.0),
                                        self.config.gps_velocity_sigma_mps).model(s.x),
                         d.heading_weight)
             s.x[HEADING] %= 2.0 * math.pi
@@ -402,9 +489,9 @@ class RoadFilter:
             t=float(s.t or 0.0), x_m=float(s.x[X_M]), y_m=float(s.x[Y_M]),
             heading_rad=float(s.x[HEADING] % (2.0 * math.pi)), speed_mps=float(s.x[SPEED]),
             yaw_rate_rps=float(s.x[HEADING_RATE]),
-            position_cov_m2=s.P[:2, :2].copy(),
+            position_cov_m2=s.P[:2, :2] + s.gps_bias_var_m2 * np.eye(2),
             heading_sigma_rad=float(math.sqrt(max(s.P[HEADING, HEADING], 0.0))),
-            initialized=s.initialized, gps=s.gps,
+            initialized=s.initialized, gps=s.gps, gps_bias_var_m2=s.gps_bias_var_m2,
         )
 
 

@@ -1,0 +1,154 @@
+"""The scorecard of issue 15: five scores of one run against its drive, and their targets.
+
+On top of :func:`navsvc.sim.evaluate.evaluate` (position errors, outage drift, right road):
+
+* fused RMS over raw GPS RMS (the evaluation's ratio);
+* drift in one planned GPS outage, as a share of the distance driven in it;
+* consistency: the share of epochs whose true fused-position error lies inside the circle of
+  radius 2.45 sigma the output reports (``position_sigma_m``, the square root of the mean of
+  the covariance's eigenvalues). For a consistent filter with a round covariance the squared
+  error over sigma squared is chi-square with 2 degrees of freedom, whose 95 % point is
+  2.45 squared (Bar-Shalom, Li and Kirubarajan 2001, section 5.4: NEES); also the mean of that
+  normalised error over 2 (1 when consistent);
+* the largest error of the output (matched) position while GPS is present: at epochs with a
+  fix in the second before;
+* the share of epochs on the right road.
+
+Inputs are wire records, as for ``evaluate``.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from navsvc.sim.evaluate import evaluate
+from roadgraph import LocalFrame
+
+CIRCLE_SIGMAS = 2.45  # sqrt of chi-square(2 dof) at 95 %
+GPS_PRESENT_WINDOW_S = 1.0  # an epoch has GPS when a fix came in the second before it
+
+
+@dataclass(frozen=True)
+class Scorecard:
+    """One run's scores (None where the drive gave nothing to score)."""
+
+    fused_to_raw_ratio: float
+    outage_drift_pct: float | None
+    circle_share: float | None  # inside 2.45 sigma
+    mean_nees_per_dof: float | None
+    max_matched_error_with_gps_m: float | None
+    right_road_share: float | None
+    fused_rms_m: float
+    raw_gps_rms_m: float
+
+
+@dataclass(frozen=True)
+class Target:
+    """A bound on the median and on the worst drive of one score."""
+
+    score: str
+    median: tuple[float, float]  # the median must lie in [low, high]
+    worst: tuple[float, float]  # every drive must lie in [low, high]
+    text: str
+
+
+TARGETS = (
+    Target("fused_to_raw_ratio", (0.0, 0.6), (0.0, 0.9), "median <= 0.6, every drive <= 0.9"),
+    Target("outage_drift_pct", (0.0, 2.0), (0.0, 4.0), "median <= 2 %, worst <= 4 %"),
+    Target("circle_share", (0.90, 0.98), (0.90, 0.98), "90-98 % inside 2.45 sigma"),
+    Target("max_matched_error_with_gps_m", (0.0, 50.0), (0.0, 50.0), "none > 50 m"),
+)
+
+
+def _truth_xy(drive: list[dict[str, Any]]) -> tuple[LocalFrame, np.ndarray, np.ndarray]:
+    truth = sorted((r for r in drive if r.get("kind") == "truth"), key=lambda r: r["t"])
+    frame = LocalFrame.for_point(truth[0]["lon"], truth[0]["lat"])
+    return (frame, np.array([r["t"] for r in truth]),
+            frame.coords_to_local(np.array([(r["lon"], r["lat"]) for r in truth])))
+
+
+def _errors(drive: list[dict[str, Any]], estimates: list[dict[str, Any]], lat: str,
+            lon: str) -> tuple[np.ndarray, np.ndarray]:
+    """Times and horizontal errors of the estimates within the truth's time span."""
+    frame, t, xy = _truth_xy(drive)
+    within = [r for r in estimates if t[0] <= r["t"] <= t[-1]]
+    if not within:
+        return np.zeros(0), np.zeros(0)
+    est_t = np.array([r["t"] for r in within])
+    est = frame.coords_to_local(np.array([(r[lon], r[lat]) for r in within]))
+    true = np.column_stack([np.interp(est_t, t, xy[:, 0]), np.interp(est_t, t, xy[:, 1])])
+    return est_t, np.hypot(*(est - true).T)
+
+
+def consistency(drive: list[dict[str, Any]],
+                estimates: list[dict[str, Any]]) -> tuple[float | None, float | None]:
+    """(share of epochs inside 2.45 sigma, mean squared error over sigma squared over 2)."""
+    _, err = _errors(drive, estimates, "fused_lat", "fused_lon")
+    t0, t1 = _truth_span(drive)
+    sigma = np.array([r["position_sigma_m"] for r in estimates if t0 <= r["t"] <= t1])
+    ok = sigma > 0
+    if not ok.any():
+        return None, None
+    ratio = err[ok] / sigma[ok]
+    return float(np.mean(ratio <= CIRCLE_SIGMAS)), float(np.mean(ratio ** 2) / 2.0)
+
+
+def _truth_span(drive: list[dict[str, Any]]) -> tuple[float, float]:
+    t = [r["t"] for r in drive if r.get("kind") == "truth"]
+    return min(t), max(t)
+
+
+def max_error_with_gps_m(drive: list[dict[str, Any]],
+                         estimates: list[dict[str, Any]]) -> float | None:
+    """The largest matched-position error at epochs with a GPS fix in the second before."""
+    est_t, err = _errors(drive, estimates, "lat", "lon")
+    gps_t = np.sort([r["t"] for r in drive if r.get("kind") == "gps"])
+    if not len(est_t) or not len(gps_t):
+        return None
+    last = np.searchsorted(gps_t, est_t, side="right") - 1
+    has = (last >= 0) & (est_t - gps_t[np.maximum(last, 0)] < GPS_PRESENT_WINDOW_S)
+    return float(err[has].max()) if has.any() else None
+
+
+def score(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
+          outage_start_s: float) -> Scorecard:
+    """The scorecard of a run; the outage scored is the GPS gap around ``outage_start_s``."""
+    e = evaluate(drive, estimates)
+    outage = next((o for o in e.outages if o.start_s <= outage_start_s + 1.0 <= o.end_s), None)
+    circle, nees = consistency(drive, estimates)
+    return Scorecard(
+        fused_to_raw_ratio=e.fused_to_raw_ratio,
+        outage_drift_pct=outage.drift_pct if outage else None,
+        circle_share=circle, mean_nees_per_dof=nees,
+        max_matched_error_with_gps_m=max_error_with_gps_m(drive, estimates),
+        right_road_share=e.on_right_road_share,
+        fused_rms_m=e.fused.rms_m, raw_gps_rms_m=e.raw_gps.rms_m)
+
+
+def _worst(values: list[float], bounds: tuple[float, float]) -> float:
+    """The largest value for an upper bound alone; else the farthest from the band's middle."""
+    low, high = bounds
+    if low <= 0.0:
+        return max(values)
+    return max(values, key=lambda v: abs(v - 0.5 * (low + high)))
+
+
+def check(cards: list[Scorecard]) -> list[tuple[str, float, float, str, bool]]:
+    """Per target: (score, median, worst drive, target text, met)."""
+    out = []
+    for target in TARGETS:
+        values = [v for c in cards if (v := getattr(c, target.score)) is not None
+                  and math.isfinite(v)]
+        if not values:
+            out.append((target.score, math.nan, math.nan, target.text, False))
+            continue
+        median, worst = statistics.median(values), _worst(values, target.worst)
+        met = target.median[0] <= median <= target.median[1] and \
+            all(target.worst[0] <= v <= target.worst[1] for v in values)
+        out.append((target.score, median, worst, target.text, met))
+    return out

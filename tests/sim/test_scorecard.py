@@ -1,0 +1,63 @@
+"""The scorecard on hand-made runs: the 2.45-sigma circle, the error while GPS is present, and
+the targets' verdicts."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from navsvc.sim.scorecard import Scorecard, check, consistency, max_error_with_gps_m
+from roadgraph import LocalFrame
+
+LON, LAT = 7.42, 43.73
+FRAME = LocalFrame.for_point(LON, LAT)
+X0, Y0 = FRAME.to_local(LON, LAT)
+
+
+def _at(t: float, dx: float = 0.0, **extra: Any) -> dict[str, Any]:
+    lon, lat = FRAME.to_wgs84(X0 + dx, Y0)
+    return {"t": t, "lat": lat, "lon": lon, **extra}
+
+
+DRIVE = [_at(float(t), kind="truth") for t in range(11)] + \
+    [_at(float(t), kind="gps") for t in (0, 1, 2, 3, 8, 9, 10)]  # no GPS from 3 to 8
+
+
+def _estimate(t: float, error_m: float, sigma_m: float) -> dict[str, Any]:
+    fused = _at(t, error_m)
+    return {**_at(t, error_m), "fused_lat": fused["lat"], "fused_lon": fused["lon"],
+            "position_sigma_m": sigma_m}
+
+
+def test_circle_share_and_normalised_error() -> None:
+    estimates = [_estimate(float(t), e, 1.0) for t, e in enumerate([0.0, 1.0, 2.4, 2.5])]
+    share, nees = consistency(DRIVE, estimates)
+    assert share == 0.5 + 0.25  # 2.5 m is outside 2.45 sigma
+    assert nees == pytest.approx((0 + 1 + 2.4 ** 2 + 2.5 ** 2) / 4 / 2, rel=1e-4)
+
+
+def test_max_error_counts_only_epochs_with_a_fix_in_the_second_before() -> None:
+    estimates = [_estimate(2.0, 10.0, 1.0), _estimate(3.5, 20.0, 1.0),
+                 _estimate(5.0, 99.0, 1.0), _estimate(9.0, 30.0, 1.0)]
+    assert max_error_with_gps_m(DRIVE, estimates) == pytest.approx(30.0, abs=1e-3)
+
+
+def _card(ratio: float, drift: float, circle: float, err: float) -> Scorecard:
+    return Scorecard(ratio, drift, circle, 1.0, err, 1.0, 1.0, 1.0)
+
+
+def test_targets_met_and_missed() -> None:
+    good = [_card(0.5, 1.5, 0.95, 20.0), _card(0.6, 2.0, 0.92, 30.0), _card(0.4, 3.9, 0.97, 5.0)]
+    assert all(met for *_, met in check(good))
+    bad = [*good, _card(0.95, 5.0, 0.5, 51.0)]
+    verdicts = {name: (worst, met) for name, _, worst, _, met in check(bad)}
+    assert verdicts == {"fused_to_raw_ratio": (0.95, False), "outage_drift_pct": (5.0, False),
+                        "circle_share": (0.5, False),
+                        "max_matched_error_with_gps_m": (51.0, False)}
+
+
+def test_no_scores_is_not_a_pass() -> None:
+    card = Scorecard(math.nan, None, None, None, None, None, math.nan, math.nan)
+    assert not any(met for *_, met in check([card]))
