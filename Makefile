@@ -33,8 +33,10 @@ bench: $(MAP_DB)
 	$(BIN)/python bench/roadgraph_bench.py --map-source $(MAP_SOURCE)
 	$(BIN)/python bench/fusion_bench.py
 	$(BIN)/python bench/fusion_eval.py --map $(MAP_DB)
+	$(BIN)/python bench/generalisation_eval.py --split report
 	$(BIN)/python bench/comma2k19.py
-	$(BIN)/python bench/matching_eval.py --map $(MAP_DB)
+	bash bench/peers/setup.sh  # OSRM and Valhalla in their own Python 3.12 venv
+	$(BIN)/python bench/matching_eval.py
 	$(BIN)/python bench/matching_speed.py --map $(MAP_DB)
 	PYTHONPATH=. $(BIN)/python bench/service_load.py --map $(MAP_DB)
 	PYTHONPATH=. $(BIN)/python bench/restart.py --map $(MAP_DB)
