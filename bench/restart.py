@@ -62,11 +62,12 @@ def build_drive_sessions(graph: RoadGraph, log_path: Path, drives: int, duration
                          imu_hz: float) -> list[dict[str, Any]]:
     """Run each drive through a real SessionStore on the log (packet time as its clock), stop
     at a random moment of its last 5 s; return what each session had acknowledged."""
-    clock = [0.0]
+    clock = [0.0]  # the drives one after another: a store's clock never goes back
     store = SessionStore(graph, TripLog(log_path), clock=lambda: clock[0])
     rng = np.random.default_rng(7)
     expected = []
     for seed in tqdm(range(1, drives + 1), desc="drives", unit="drive"):
+        start = clock[0]
         spec = DriveSpec(duration_s=duration_s, seed=seed, imu_rate_hz=imu_hz,
                          sensors=("imu", "gps"))
         stop_t = duration_s - rng.uniform(0.0, 5.0)
@@ -76,11 +77,12 @@ def build_drive_sessions(graph: RoadGraph, log_path: Path, drives: int, duration
         batch: list[dict[str, Any]] = []
         for packet in packets:  # a message every 0.1 s, as a vehicle at real rate sends
             if batch and int(packet["t"] * 10) != int(batch[0]["t"] * 10):
-                clock[0] = batch[-1]["t"]
+                clock[0] = start + batch[-1]["t"]
                 store.ingest(session, batch)
                 batch = []
             batch.append(packet)
         store.ingest(session, batch)
+        clock[0] = start + duration_s
         position = session.vehicle.last_position
         assert position is not None
         expected.append({"id": session.id, "packets": session.packets,
@@ -113,7 +115,8 @@ def copy_sessions(log_path: Path, originals: list[dict[str, Any]], sessions: int
                    (new_id, original["id"]))
         row = db.execute("SELECT batch_rowid, packets, rejected, state FROM checkpoints "
                          "WHERE session_id = ?", (original["id"],)).fetchone()
-        if checkpoints and row is not None:
+        assert row is not None, f"drive session {original['id']} has no checkpoint"
+        if checkpoints:
             db.execute("INSERT INTO checkpoints VALUES (?, ?, ?, ?, ?)",
                        (new_id, base + 1 + rowids.index(row[0]), *row[1:]))
         expected.append({**original, "id": new_id})

@@ -59,6 +59,7 @@ CREATE TABLE IF NOT EXISTS batches (  -- one row a batch, in the order they were
     reply TEXT                    -- the reply it got (JSON), kept to answer a resend
 );
 CREATE INDEX IF NOT EXISTS batches_of_session ON batches (session_id);
+CREATE INDEX IF NOT EXISTS numbered_batches ON batches (session_id) WHERE client_seq IS NOT NULL;
 CREATE TABLE IF NOT EXISTS checkpoints (  -- a session's pipeline, saved now and then
     session_id TEXT PRIMARY KEY REFERENCES sessions(id),
     batch_rowid INTEGER NOT NULL, -- the last batch it has applied
@@ -244,7 +245,8 @@ class TripLog:
     def last_replies(self, session_id: str, limit: int) -> list[LoggedReply]:
         """The replies to the session's last ``limit`` numbered batches, oldest first."""
         rows = self._db.execute(
-            "SELECT client_seq, reply FROM batches INDEXED BY batches_of_session "
+            # only the numbered ones: through batches_of_session a restart read every row
+            "SELECT client_seq, reply FROM batches INDEXED BY numbered_batches "
             "WHERE session_id = ? AND client_seq IS NOT NULL ORDER BY rowid DESC LIMIT ?",
             (session_id, limit)).fetchall()
         return [LoggedReply(seq, json.loads(reply)) for seq, reply in reversed(rows)]
