@@ -77,28 +77,41 @@ def test_log_written_a_row_a_packet_is_moved_to_batches(tmp_path: Path) -> None:
                            ).fetchone() is None
 
 
-def test_batches_of_a_without_rowid_table_are_moved_over(tmp_path: Path) -> None:
+OLD_BATCHES = {  # the batches tables of older layouts
+    "without_rowid": """CREATE TABLE batches (session_id TEXT NOT NULL, seq INTEGER NOT NULL,
+        count INTEGER NOT NULL, records TEXT NOT NULL,
+        PRIMARY KEY (session_id, seq)) WITHOUT ROWID;""",
+    "keyed_by_first_packet": """CREATE TABLE batches (session_id TEXT NOT NULL
+        REFERENCES sessions(id), seq INTEGER NOT NULL, count INTEGER NOT NULL,
+        records TEXT NOT NULL, PRIMARY KEY (session_id, seq));""",
+}
+
+
+@pytest.mark.parametrize("layout", OLD_BATCHES)
+def test_batches_of_an_older_layout_are_moved_over(tmp_path: Path, layout: str) -> None:
+    """Batches keyed by (session, first packet) could not hold a batch of refused packets;
+    the WITHOUT ROWID table spilled its rows to overflow pages."""
     path = tmp_path / "trips.db"
     db = sqlite3.connect(path)
-    db.executescript("""
+    db.executescript(f"""
         CREATE TABLE sessions (id TEXT PRIMARY KEY, owner TEXT NOT NULL,
             vehicle_id TEXT NOT NULL, options TEXT NOT NULL, created_unix REAL NOT NULL,
             closed INTEGER NOT NULL DEFAULT 0);
-        CREATE TABLE batches (session_id TEXT NOT NULL, seq INTEGER NOT NULL,
-            count INTEGER NOT NULL, records TEXT NOT NULL,
-            PRIMARY KEY (session_id, seq)) WITHOUT ROWID;
+        {OLD_BATCHES[layout]}
         INSERT INTO sessions (id, owner, vehicle_id, options, created_unix)
-            VALUES ('s1', '', 'car', '{}', 0);
-        INSERT INTO batches VALUES ('s1', 2, 1, '[{"t":2.0}]'),
-                                   ('s1', 0, 2, '[{"t":0.0},{"t":1.0}]');
+            VALUES ('s1', '', 'car', '{{}}', 0);
+        INSERT INTO batches VALUES ('s1', 2, 1, '[{{"t":2.0}}]'),
+                                   ('s1', 0, 2, '[{{"t":0.0}},{{"t":1.0}}]');
     """)
     db.close()
     log = TripLog(path)
     assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}, {"t": 2.0}]
     sql = log._db.execute("SELECT sql FROM sqlite_master WHERE name = 'batches'").fetchone()[0]
-    assert "WITHOUT ROWID" not in sql.upper()
+    assert "WITHOUT ROWID" not in sql.upper() and "client_seq" in sql
     log.append("s1", 3, [{"t": 3.0}])
+    log.append("s1", 4, [], rejected=2)  # a batch of refused packets has a row now
     assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}, {"t": 2.0}, {"t": 3.0}]
+    assert [b.rejected for b in log.batches_after("s1")] == [0, 0, 0, 2]
 
 
 def test_the_log_holds_packets_as_validated_not_as_received(
@@ -340,28 +353,6 @@ def test_a_second_server_cannot_open_a_trip_log_in_use(tmp_path: Path) -> None:
         TripLog(tmp_path / "trips.db")
     log.close()
     TripLog(tmp_path / "trips.db").close()  # free again once the first has stopped
-
-
-def test_a_log_of_batches_keyed_by_first_packet_is_moved_over(tmp_path: Path) -> None:
-    path = tmp_path / "trips.db"
-    db = sqlite3.connect(path)
-    db.executescript("""
-        CREATE TABLE sessions (id TEXT PRIMARY KEY, owner TEXT NOT NULL,
-            vehicle_id TEXT NOT NULL, options TEXT NOT NULL, created_unix REAL NOT NULL,
-            closed INTEGER NOT NULL DEFAULT 0);
-        CREATE TABLE batches (session_id TEXT NOT NULL REFERENCES sessions(id),
-            seq INTEGER NOT NULL, count INTEGER NOT NULL, records TEXT NOT NULL,
-            PRIMARY KEY (session_id, seq));
-        INSERT INTO sessions (id, owner, vehicle_id, options, created_unix)
-            VALUES ('s1', '', 'car', '{}', 0);
-        INSERT INTO batches VALUES ('s1', 2, 1, '[{"t":2.0}]'),
-                                   ('s1', 0, 2, '[{"t":0.0},{"t":1.0}]');
-    """)
-    db.close()
-    log = TripLog(path)
-    assert list(log.packets("s1")) == [{"t": 0.0}, {"t": 1.0}, {"t": 2.0}]
-    log.append("s1", 3, [], rejected=2)  # a batch of refused packets has a row now
-    assert [b.rejected for b in log.batches_after("s1")] == [0, 0, 2]
 
 
 def test_reopened_sessions_are_rebuilt_when_named_or_one_at_a_time(

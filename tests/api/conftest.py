@@ -19,3 +19,11 @@ def server(sample_db: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     s = start_server(db, folder / "server.log")
     yield s
     s.stop()
+
+
+@pytest.fixture()
+def db(sample_db: Path, tmp_path: Path) -> Path:
+    """A private copy of the sample map, for a test that starts its own servers."""
+    copy = tmp_path / "monaco.db"
+    shutil.copy(sample_db, copy)
+    return copy

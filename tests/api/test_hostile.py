@@ -4,7 +4,6 @@ issue, reproduced as it was found, and what the server now does instead."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -20,13 +19,6 @@ from tests.api.server import Server, free_port, start_server
 KEY = "s3cret-key-for-the-log-test"
 GPS = [{"t": float(i), "kind": "gps", "lat": 43.7384 + 1e-4 * i, "lon": 7.4246,
         "speed_mps": 11.0, "heading_deg": 0.0} for i in range(6)]
-
-
-@pytest.fixture()
-def db(sample_db: Path, tmp_path: Path) -> Path:
-    copy = tmp_path / "monaco.db"
-    shutil.copy(sample_db, copy)
-    return copy
 
 
 @pytest.fixture()

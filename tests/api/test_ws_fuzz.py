@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import sys
 import threading
 import time
@@ -697,13 +696,6 @@ def _bystander(server: Server, session_id: str, batches: list[list[dict[str, Any
 
 
 # --- the test ----------------------------------------------------------------------------
-
-@pytest.fixture()
-def db(sample_db: Path, tmp_path: Path) -> Path:
-    copy = tmp_path / "monaco.db"
-    shutil.copy(sample_db, copy)
-    return copy
-
 
 @pytest.fixture()
 def server(db: Path, tmp_path: Path) -> Iterator[Server]:
