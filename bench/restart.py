@@ -2,7 +2,7 @@
 
 Builds the trip log a crashed server leaves: ``--sessions`` open sessions with ``--duration``
 seconds of data each (100 Hz IMU and 1 Hz GPS by default, sent in 0.1 s batches), saved as the
-service saves them (a checkpoint every 500 packets, at most every 2 s of packet time), each cut
+service saves them (a checkpoint every 200 packets, at most every second of packet time), each cut
 at a random moment of its last seconds, so that each has a tail logged after its last
 checkpoint. The
 sessions are ``--drives`` distinct simulated drives, each copied to sessions/drives sessions of
