@@ -31,7 +31,8 @@ class FusionConfig:
     wheelbase_m: float = 2.7
     ticks_per_m: float = 27.3  # thesis: ABS pulses per metre
     gps_uere_m: float = 3.5  # sigma = HDOP x UERE when no accuracy_m is given (tuned: bench)
-    gps_default_sigma_m: float = 10.0  # a fix that says nothing of its accuracy
+    gps_default_sigma_m: float = 5.0  # a fix that says nothing of its accuracy (the learnt
+    # scale widens it when the fixes are further off)
     gps_velocity_sigma_mps: float = 0.5
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
     gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
