@@ -21,7 +21,7 @@ import secrets
 import sqlite3
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Generator, Iterable
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -321,7 +321,18 @@ def load_vehicle(data: bytes, graph: RoadGraph) -> VehicleSession | None:
     return vehicle if written_by == code_id() and isinstance(vehicle, VehicleSession) else None
 
 
+def _finish(steps: Generator[None, None, LiveSession]) -> LiveSession:
+    """Run a stepwise rebuild to its end."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            session: LiveSession = done.value
+            return session
+
+
 REPLIES_KEPT = 64  # replies to numbered batches kept per session, to answer resends
+REPLAY_STEP_BATCHES = 50  # a background rebuild replays this many batches between requests
 
 
 @dataclass
@@ -364,8 +375,9 @@ class SessionStore:
 
     After a restart the open sessions of the log are known at once but rebuilt as they are
     needed (:meth:`reopen`): a session a request names is rebuilt then, the rest one at a
-    time by :meth:`restore_next` (the API calls it between requests), so the server answers
-    from its first second whatever the number of sessions."""
+    time by :meth:`restore_next`, a step of a few batches at a time (the API calls it between
+    requests), so the server answers from its first second whatever the number of sessions
+    and however long a log without a checkpoint is."""
 
     def __init__(self, graph: RoadGraph, triplog: TripLog, *, idle_timeout_s: float = 3600.0,
                  max_sessions_per_owner: int = 10_000,
@@ -377,15 +389,21 @@ class SessionStore:
         self._clock = clock
         self._sessions: dict[str, LiveSession] = {}
         self._pending: dict[str, LoggedSession] = {}  # open in the log, not rebuilt yet
+        # the one being rebuilt in the background, a step at a time
+        self._rebuilding: dict[str, tuple[LoggedSession, Generator[None, None, LiveSession]]] \
+            = {}
 
     def __len__(self) -> int:
-        return len(self._sessions) + len(self._pending)
+        return len(self._sessions) + len(self._pending) + len(self._rebuilding)
+
+    def _not_rebuilt(self) -> list[LoggedSession]:
+        return [*self._pending.values(), *(logged for logged, _ in self._rebuilding.values())]
 
     def create(self, owner: str, vehicle_id: str, options: dict[str, Any]) -> LiveSession:
         """Start a session (options as in :func:`config_from_options`)."""
         config = config_from_options(options)
         owned = sum(s.owner == owner for s in self._sessions.values()) + \
-            sum(p.owner == owner for p in self._pending.values())
+            sum(p.owner == owner for p in self._not_rebuilt())
         if owned >= self.max_sessions_per_owner:
             raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
                                 f"{self.max_sessions_per_owner}")
@@ -400,18 +418,26 @@ class SessionStore:
         return session
 
     def get(self, session_id: str, owner: str) -> LiveSession:
-        pending = self._pending.get(session_id)
-        if pending is not None and pending.owner == owner:
-            self._restore(self._pending.pop(session_id))
+        self._rebuild_now(session_id, owner)
         session = self._sessions.get(session_id)
         if session is None or session.owner != owner:
             raise SessionNotFound(f"no session {session_id!r}")
         return session
 
     def sessions(self, owner: str) -> list[LiveSession]:
-        for logged in [p for p in self._pending.values() if p.owner == owner]:
-            self._restore(self._pending.pop(logged.id))
+        for logged in [p for p in self._not_rebuilt() if p.owner == owner]:
+            self._rebuild_now(logged.id, owner)
         return [s for s in self._sessions.values() if s.owner == owner]
+
+    def _rebuild_now(self, session_id: str, owner: str) -> None:
+        """Finish rebuilding a session of the owner's that is not rebuilt yet, if it is one."""
+        rebuilding = self._rebuilding.get(session_id)
+        if rebuilding is not None and rebuilding[0].owner == owner:
+            del self._rebuilding[session_id]
+            self._install(_finish(rebuilding[1]))
+        pending = self._pending.get(session_id)
+        if pending is not None and pending.owner == owner:
+            self._install(self._load(self._pending.pop(session_id)))
 
     def ingest(self, session: LiveSession, records: list[Any],
                client_seq: int | None = None) -> Ingested:
@@ -517,10 +543,20 @@ class SessionStore:
         return len(self._pending)
 
     def restore_next(self) -> bool:
-        """Rebuild one session taken by :meth:`reopen`; False when none is left."""
+        """One step of rebuilding the sessions taken by :meth:`reopen` (a few batches of
+        one); False when none is left."""
+        if self._rebuilding:
+            session_id, (logged, steps) = next(iter(self._rebuilding.items()))
+            try:
+                next(steps)
+            except StopIteration as done:
+                del self._rebuilding[session_id]
+                self._install(done.value)
+            return True
         if not self._pending:
             return False
-        self._restore(self._pending.pop(next(iter(self._pending))))
+        logged = self._pending.pop(next(iter(self._pending)))
+        self._rebuilding[logged.id] = (logged, self._loading(logged))
         return True
 
     def restore(self) -> int:
@@ -530,14 +566,18 @@ class SessionStore:
             pass
         return len(self._sessions)
 
-    def _restore(self, logged: LoggedSession) -> None:
-        session = self._load(logged)
-        self._sessions[logged.id] = session
-        log.debug("session %s restored: %d packets", logged.id, session.packets)
+    def _install(self, session: LiveSession) -> None:
+        self._sessions[session.id] = session
+        log.debug("session %s restored: %d packets", session.id, session.packets)
 
     def _load(self, logged: LoggedSession) -> LiveSession:
+        """A session rebuilt from the trip log, all at once."""
+        return _finish(self._loading(logged))
+
+    def _loading(self, logged: LoggedSession) -> Generator[None, None, LiveSession]:
         """A session rebuilt from the trip log: its last checkpoint, then the batches logged
-        after it (all of them when there is no usable checkpoint)."""
+        after it (all of them when there is no usable checkpoint), pausing (yielding) after
+        every ``REPLAY_STEP_BATCHES``; returns the session."""
         checkpoint = self.triplog.checkpoint(logged.id)
         vehicle = None
         if checkpoint is not None:
@@ -555,14 +595,17 @@ class SessionStore:
                               vehicle=vehicle, packets=checkpoint.packets,
                               rejected=checkpoint.rejected, last_seen=now,
                               last_batch_rowid=checkpoint.batch_rowid, checkpoint_clock=now)
-        for batch in self.triplog.batches_after(logged.id, checkpoint.batch_rowid):
-            replayed = vehicle.add_records(batch.records)
-            if replayed.faulted:  # cannot happen to validated packets; say so if it does
-                log.error("session %s: logged batch %d failed to replay", logged.id,
-                          batch.rowid)
-            session.packets += len(batch.records)
-            session.rejected += batch.rejected
-            session.last_batch_rowid = batch.rowid
+        while batches := self.triplog.batches_after(logged.id, session.last_batch_rowid,
+                                                    REPLAY_STEP_BATCHES):
+            for batch in batches:
+                replayed = vehicle.add_records(batch.records, skip_truth=False)
+                if replayed.faulted:  # cannot happen to validated packets; say so if it does
+                    log.error("session %s: logged batch %d failed to replay", logged.id,
+                              batch.rowid)
+                session.packets += len(batch.records)
+                session.rejected += batch.rejected
+                session.last_batch_rowid = batch.rowid
+            yield
         session.checkpoint_packets = checkpoint.packets + checkpoint.rejected
         for logged_reply in self.triplog.last_replies(logged.id, REPLIES_KEPT):
             session.replies[logged_reply.client_seq] = logged_reply.reply

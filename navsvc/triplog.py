@@ -227,15 +227,18 @@ class TripLog:
             (session_id,)).fetchone()
         return None if row is None else Checkpoint(row[0], row[1], row[2], bytes(row[3]))
 
-    def batches_after(self, session_id: str, rowid: int = 0) -> Iterator[LoggedBatch]:
-        """A session's batches logged after row ``rowid``, in the order they were applied."""
-        cursor = self._db.execute(
+    def batches_after(self, session_id: str, rowid: int = 0, limit: int = -1
+                      ) -> list[LoggedBatch]:
+        """A session's batches logged after row ``rowid``, in the order they were applied;
+        at most ``limit`` of them (-1: all)."""
+        rows = self._db.execute(
             # the index, named: for "rowid > ? ORDER BY rowid" SQLite would rather walk the
             # table in rowid order, every other session's rows too (seconds in a big log)
             "SELECT rowid, records, rejected FROM batches INDEXED BY batches_of_session "
-            "WHERE session_id = ? AND rowid > ? ORDER BY rowid", (session_id, rowid))
-        for row_id, records, rejected in cursor:
-            yield LoggedBatch(row_id, json.loads(records), rejected)
+            "WHERE session_id = ? AND rowid > ? ORDER BY rowid LIMIT ?",
+            (session_id, rowid, limit)).fetchall()
+        return [LoggedBatch(row_id, json.loads(records), rejected)
+                for row_id, records, rejected in rows]
 
     def packets(self, session_id: str) -> Iterator[Any]:
         """A session's packets in the order they were applied."""

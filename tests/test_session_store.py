@@ -241,11 +241,11 @@ def test_a_restart_loads_the_checkpoint_and_replays_only_the_tail(
     log = TripLog(tmp_path / "trips.db")
     replayed: list[int] = []
     original = log.batches_after
-    monkeypatch.setattr(log, "batches_after", lambda sid, rowid=0: (
-        replayed.append(rowid) or original(sid, rowid)))
+    monkeypatch.setattr(log, "batches_after", lambda sid, rowid=0, limit=-1: (
+        replayed.append(rowid) or original(sid, rowid, limit)))
     restored = SessionStore(sample_graph, log)
     restored.restore()
-    assert replayed == [checkpoint.batch_rowid]  # the tail only
+    assert replayed[0] == checkpoint.batch_rowid  # the tail only
     again = restored.get(session.id, "")
     assert (again.packets, again.rejected) == (session.packets, session.rejected)
     assert session.vehicle.last_position is not None
@@ -371,6 +371,37 @@ def test_reopened_sessions_are_rebuilt_when_named_or_one_at_a_time(
     assert restarted.get(mine[1].id, "me").packets == 6  # rebuilt on demand
     assert set(restarted._sessions) == {mine[1].id}
     assert {s.id for s in restarted.sessions("me")} == {s.id for s in mine}
-    assert restarted.restore_next() and not restarted.restore_next()
+    while restarted.restore_next():  # the last one, in the background
+        pass
+    assert set(restarted._sessions) == {*(s.id for s in mine), theirs.id}
     assert restarted.get(theirs.id, "them").vehicle.engine.t == GPS[-1]["t"]
     assert len(restarted) == 4
+
+
+def test_a_long_rebuild_in_the_background_goes_a_few_batches_at_a_time(
+        sample_graph: RoadGraph, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A session without a usable checkpoint (after an upgrade) replays its whole log: in
+    steps, between requests, and at once when a request names it."""
+    monkeypatch.setattr("navsvc.session.REPLAY_STEP_BATCHES", 5)
+    packets = _batches(_drive(sample_graph, seconds=20.0), size=10)
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    first, second = store.create("", "car", {}), store.create("", "van", {})
+    for batch in packets:
+        store.ingest(first, batch)
+        store.ingest(second, batch)
+    store.triplog.close()
+    monkeypatch.setattr("navsvc.session.code_id", lambda: "an upgrade")  # no checkpoint loads
+    restarted = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"))
+    restarted.reopen()
+    steps = 0
+    while restarted.restore_next() and not restarted._sessions:
+        steps += 1
+    assert steps >= len(packets) // 5  # the first session went a step at a time
+    assert len(restarted) == 2
+    named = restarted.get(second.id, "")  # half rebuilt, or not started: finished now
+    assert not restarted.restore_next() or not restarted.restore_next()
+    frame = sample_graph.frame
+    for live, again in ((first, restarted.get(first.id, "")), (second, named)):
+        assert again.packets == live.packets
+        assert position_json(again.vehicle.last_position, frame) == \
+            position_json(live.vehicle.last_position, frame)  # type: ignore[arg-type]
