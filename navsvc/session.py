@@ -332,6 +332,7 @@ def _finish(steps: Generator[None, None, LiveSession]) -> LiveSession:
 
 
 REPLIES_KEPT = 64  # replies to numbered batches kept per session, to answer resends
+MAX_CLIENT_SEQ = 2**53  # a client's batch number, at most (JSON numbers are exact up to it)
 REPLAY_STEP_BATCHES = 50  # a background rebuild replays this many batches between requests
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import secrets
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, WebSocket
@@ -26,6 +27,11 @@ class AppState:
     store: SessionStore
     metrics: Metrics
 
+    @cached_property
+    def api_keys(self) -> tuple[bytes, ...]:
+        """The accepted keys as bytes, encoded once (they are compared at every request)."""
+        return tuple(key_bytes(k) for k in self.settings.api_keys)
+
 
 def get_state(request: Request) -> AppState:
     state: AppState = request.app.state.navsvc
@@ -37,11 +43,11 @@ def check_key(state: AppState, key: str | None) -> str:
 
     Compared as bytes (any characters a client sends), with every accepted key, so that the
     time taken says nothing about which key came close."""
-    keys = state.settings.api_keys
+    keys = state.api_keys
     if keys:
         given, valid = key_bytes(key), False
         for k in keys:
-            valid |= secrets.compare_digest(given, key_bytes(k))
+            valid |= secrets.compare_digest(given, k)
         if not (key and valid):
             raise HTTPException(401, "missing or unknown API key (header X-API-Key)")
     return owner_of(key)

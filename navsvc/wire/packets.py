@@ -25,6 +25,10 @@ MAX_RATE_DPS = 1000.0
 MAX_ACCEL_MPS2 = 200.0
 MAX_DISTANCE_M = 1e9  # cumulative odometer distance
 MAX_TICKS = 10**15  # cumulative odometer ticks
+# ranges of a GPS fix, whichever format it came in (JSON, NMEA, Oncore)
+FIX_RANGES: dict[str, tuple[float, float]] = {
+    "speed_mps": (0.0, MAX_SPEED_MPS), "alt_m": (-1000.0, 50_000.0), "hdop": (0.0, 100.0),
+    "sats": (0, 200)}
 
 Time = Annotated[float, Strict(), Field(ge=0.0, le=MAX_TIME_S, allow_inf_nan=False)]
 Rate = Annotated[float, Strict(), Field(ge=-MAX_RATE_DPS, le=MAX_RATE_DPS, allow_inf_nan=False)]
@@ -46,13 +50,16 @@ class GpsPacket(_Packet):
     kind: Literal["gps"] = "gps"
     lat: Annotated[float, Strict(), Field(ge=-90.0, le=90.0, allow_inf_nan=False)]
     lon: Annotated[float, Strict(), Field(ge=-180.0, le=180.0, allow_inf_nan=False)]
-    alt_m: Annotated[float, Strict(), Field(ge=-1000.0, le=50_000.0, allow_inf_nan=False)] \
+    alt_m: Annotated[float, Strict(), Field(ge=FIX_RANGES["alt_m"][0],
+                                            le=FIX_RANGES["alt_m"][1], allow_inf_nan=False)] \
         | None = None
     speed_mps: Speed | None = None
     heading_deg: Annotated[float, Strict(), Field(ge=0.0, le=360.0, allow_inf_nan=False)] \
         | None = None
-    hdop: Annotated[float, Strict(), Field(ge=0.0, le=100.0, allow_inf_nan=False)] | None = None
-    sats: Annotated[int, Strict(), Field(ge=0, le=200)] | None = None
+    hdop: Annotated[float, Strict(), Field(ge=FIX_RANGES["hdop"][0], le=FIX_RANGES["hdop"][1],
+                                           allow_inf_nan=False)] | None = None
+    sats: Annotated[int, Strict(), Field(ge=FIX_RANGES["sats"][0],
+                                         le=FIX_RANGES["sats"][1])] | None = None
     fix: Literal["none", "2d", "3d", "dgps", "rtk"] | None = None
     accuracy_m: Annotated[float, Strict(), Field(gt=0.0, le=10_000.0, allow_inf_nan=False)] \
         | None = None
@@ -137,14 +144,12 @@ class OncorePacket(_Packet):
 
 
 PacketT = TypeVar("PacketT", bound=Packet)
-_FIX_RANGES = {"speed_mps": (0.0, MAX_SPEED_MPS), "alt_m": (-1000.0, 50_000.0),
-               "hdop": (0.0, 100.0), "sats": (0, 200)}  # as GpsPacket's fields
 
 
 def in_json_ranges(packet: PacketT) -> PacketT:
     """A fix decoded from NMEA or Oncore, held to the ranges of the JSON ``gps`` packet (an
     RMC speed of 1e308 knots was accepted, and turned the filter's state to NaN)."""
-    for name, (low, high) in _FIX_RANGES.items():
+    for name, (low, high) in FIX_RANGES.items():
         value = getattr(packet, name, None)
         if value is not None and not low <= value <= high:
             raise PacketError(RejectReason.OUT_OF_RANGE,

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Body, HTTPException, Query, Response
 
 from navsvc.api.deps import AppState, OwnerDep, StateDep
 from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
-from navsvc.session import LiveSession
+from navsvc.session import MAX_CLIENT_SEQ, LiveSession
 from navsvc.wire.positions import position_json
 
 router = APIRouter(prefix="/sessions", tags=["sessions"],
@@ -87,7 +87,7 @@ async def post_packets(
                         {"t": 0.0, "kind": "gps", "lat": 43.7384, "lon": 7.4246},
                         {"t": 0.01, "kind": "imu", "yaw_rate_dps": 1.5}]]),
     batch_seq: int | None = Query(  # noqa: B008
-        None, ge=0, le=2**53,
+        None, ge=0, le=MAX_CLIENT_SEQ,
         description="the client's number for this batch, increasing per session: a batch "
                     "sent again with the same number (say, after a lost reply) is not applied "
                     "twice but answered with its first reply plus \"duplicate\": true; "

@@ -30,6 +30,7 @@ from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 from navsvc.api.deps import API_KEY_HEADER, AppState, check_key, websocket_state
 from navsvc.api.routes.sessions import ingest
 from navsvc.errors import BatchAlreadyApplied, SessionNotFound
+from navsvc.session import MAX_CLIENT_SEQ
 
 router = APIRouter(tags=["sessions"])
 log = logging.getLogger(__name__)
@@ -88,9 +89,6 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
         sender.cancel()
 
 
-MAX_SEQ = 2**53
-
-
 def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
             ) -> dict[str, Any]:
     """The reply to one WebSocket frame; never raises."""
@@ -109,8 +107,9 @@ def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, An
     seq = None
     if isinstance(message, dict) and message.get("type") == "batch":
         seq, packets = message.get("seq"), message.get("packets")
-        if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq <= MAX_SEQ:
-            return _error("malformed", f"batch seq must be an integer from 0 to {MAX_SEQ}")
+        if not isinstance(seq, int) or isinstance(seq, bool) or not 0 <= seq <= MAX_CLIENT_SEQ:
+            return _error("malformed",
+                          f"batch seq must be an integer from 0 to {MAX_CLIENT_SEQ}")
         if not isinstance(packets, list):
             return _error("malformed", "batch packets must be an array")
     else:
