@@ -40,6 +40,10 @@ class FusionConfig:
     gps_huber_nis: float = 5.99  # ekf: a fix past this NIS (95 %, 2 dof) pulls as one at it
     gps_bias_share: float = 0.7  # ekf: of a fix's sigma, the part that is a slowly changing
     # error: averaging fixes does not remove it, so the reported position sigma includes it
+    track_gap_s: float = 3.0  # ekf: fixes further apart than this break the GPS track
+    track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump
+    max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused as long as
+    # the track had lasted, this long at most (non-line-of-sight runs last 10-60 s)
     reacquire_after_gated_s: float = 30.0  # ekf: fixes refused this long → start over from GPS
     inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it
@@ -55,6 +59,9 @@ class FusionConfig:
     output_interval_s: float = 1.0  # emit an estimate at least this often (GPS outages)
     max_step_s: float = 0.1  # longer gaps are propagated in steps of this size
     initial_gyro_bias_sigma_rps: float = 0.02
+    min_still_gyro_samples: int = 100  # gyro samples at a standstill before start-up that
+    # give the starting gyro bias (their mean)
+    still_gyro_bias_sigma_rps: float = 2e-4  # ... with this sigma on top of the mean's
     initial_odo_scale_sigma: float = 0.05
     rules: RuleParams = RuleParams()
     fuzzy: FuzzySets = THESIS_SETS

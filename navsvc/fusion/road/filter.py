@@ -76,15 +76,25 @@ class RoadState:
     P: Array = field(default_factory=lambda: np.eye(N_STATES))
     t: float | None = None  # time of x
     initialized: bool = False
+    calibrating: bool = False  # the sensor biases and scales are states (since the start)
     first_fix: tuple[float, float, float, float] | None = None  # (t, x, y, sigma) awaiting a
     # heading
     odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
     last_odo: odometer.Window | None = None  # odometer speed window start
     last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
     still_samples: int = 0
+    still_gyro: tuple[int, float] = (0, 0.0)  # before start-up: (count, sum) of the gyro
+    # rates read while the odometer said the car stood still (its bias)
     accel_fwd_mps2: float | None = None  # last forward acceleration (configs 3 and 4)
     gated_fixes: int = 0  # consecutive GPS fixes refused by the gate
     first_gated_t: float | None = None  # when the current run of refused fixes began
+    tracking_since_t: float | None = None  # fixes accepted without a break since then
+    last_accepted_t: float | None = None  # the latest fix the gate let through
+    jump_since_t: float | None = None  # a run of fixes that jumped away from the track
+    jump_limit_s: float = 0.0  # ... refused this long at most
+    gated_offset_m: tuple[float, float] | None = None  # where the refused run's first fix lay
+    followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
+    # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
     gps_bias_var_m2: float = 0.0  # variance of the GPS error the filter cannot average out
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
@@ -147,6 +157,7 @@ class RoadFilter:
             if isinstance(packet, GpsFix):
                 self._try_initialize(packet)
                 return [self._estimate()] if s.initialized else []
+            self._remember_still_gyro(packet)
             self._remember_odometer(packet)
             return []
         gyro = packet.yaw_rate_rps if isinstance(packet, ImuSample) and self._gyro else None
@@ -238,9 +249,19 @@ class RoadFilter:
                                                         cfg.ticks_per_m, cfg.odometer_window_s)
         return speed
 
+    def _remember_still_gyro(self, packet: Packet) -> None:
+        """Before start-up, average the gyro while the car stands still: the turn-on bias
+        is then known when the filter starts (it can be a degree a second)."""
+        s = self.state
+        if isinstance(packet, ImuSample) and self._gyro and packet.yaw_rate_rps is not None \
+                and s.still_samples >= self.config.stationary_after_samples:
+            n, total = s.still_gyro
+            s.still_gyro = (n + 1, total + packet.yaw_rate_rps)
+
     def _remember_odometer(self, packet: Packet) -> None:
         if isinstance(packet, OdometerSample):
-            self._odometer_still(packet)
+            still = self._odometer_still(packet)
+            self.state.still_samples = self.state.still_samples + 1 if still else 0
             speed = self._odometer_speed(packet)
             if speed is not None:
                 self.state.odo_speed_mps = speed
@@ -332,14 +353,24 @@ class RoadFilter:
         if speed is not None:
             s.x[SPEED] = speed[0]
             _reset_variance(s.P, SPEED, speed[1])
-        if not s.initialized:
-            s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, 0.0, 1.0
-            for i, var in ((HEADING_RATE, 0.1 ** 2),
-                           (GYRO_BIAS, cfg.initial_gyro_bias_sigma_rps ** 2),
+        if not s.calibrating:  # a re-acquiring filter keeps what it has learnt
+            s.calibrating = True
+            bias, bias_var = self._initial_gyro_bias()
+            s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, bias, 1.0
+            for i, var in ((HEADING_RATE, 0.1 ** 2), (GYRO_BIAS, bias_var),
                            (ODO_SCALE, cfg.initial_odo_scale_sigma ** 2),
                            (ACCEL_BIAS, 0.1 ** 2)):
                 _reset_variance(s.P, i, var)
-        s.gated_fixes, s.first_gated_t = 0, None
+        s.gated_fixes, s.first_gated_t, s.jump_since_t = 0, None, None
+
+    def _initial_gyro_bias(self) -> tuple[float, float]:
+        """The gyro bias and its variance at start-up: the mean rate while standing still,
+        when the car stood long enough for it, else zero with the configured sigma."""
+        cfg = self.config
+        n, total = self.state.still_gyro
+        if n < cfg.min_still_gyro_samples:
+            return 0.0, cfg.initial_gyro_bias_sigma_rps ** 2
+        return total / n, cfg.gyro_sigma_rps ** 2 / n + cfg.still_gyro_bias_sigma_rps ** 2
 
     def _fuse_gps(self, fix: GpsFix) -> None:
         s = self.state
@@ -375,14 +406,28 @@ class RoadFilter:
         z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
         y = z - h
         nis = float(y @ np.linalg.solve(H @ s.P @ H.T + R, y))
+        if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
+            if self._jumps_back(fix.t, y, sigma):
+                s.x[X_M], s.x[Y_M] = east, north
+                s.P[X_M, X_M] += sigma ** 2
+                s.P[Y_M, Y_M] += sigma ** 2
+                self._tracking(fix.t)
+                s.gps = GpsUsage(True, 1.0, "re-acquired: the fixes jumped back", nis=nis)
+                return
+            if self._jumped(fix.t, nis):
+                s.gps = GpsUsage(False, 0.0, f"refused: jumped {math.hypot(*y):.0f} m away "
+                                 "from the track (non-line-of-sight?)", nis=nis)
+                return
+            self._refused_fix(fix, east, north, (z, h, H, R), nis, min(dt_s, 1.0))
+            return
         if math.isfinite(nis):
             memory = cfg.gps_nis_memory_fixes * max(1.0, 1.0 / max(dt_s, 1e-3))
             s.gps_nis_mean += (min(nis, 10.0 * cfg.gps_huber_nis) - s.gps_nis_mean) / memory
-        if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
-            self._refused_fix(fix, east, north, (z, h, H, R), nis, min(dt_s, 1.0))
-            return
         weight = min(1.0, cfg.gps_huber_nis / nis) if nis > 0.0 else 1.0
         self._update_linearised((z, h, H, R / weight))
+        if s.gated_fixes and s.gated_offset_m is not None and not self._recent_jump(fix.t):
+            s.followed_jump = (fix.t, *s.gated_offset_m)  # the filter followed a jump
+        self._tracking(fix.t)
         s.gps_bias_var_m2 = (cfg.gps_bias_share * self._gps_sigma_learnt(fix)) ** 2
         s.gated_fixes, s.first_gated_t = 0, None
         course = self._gps_course(fix)
@@ -392,6 +437,53 @@ class RoadFilter:
             self._update(ZeroMotion(sigma_mps=0.3, sigma_rps=0.05))
         s.gps = GpsUsage(True, weight, "accepted" if weight == 1.0 else "down-weighted",
                          nis=nis)
+
+    def _tracking(self, t: float) -> None:
+        """A fix got through the gate: the track goes on (or starts again after a gap)."""
+        s = self.state
+        if s.last_accepted_t is None or t - s.last_accepted_t > self.config.track_gap_s:
+            s.tracking_since_t = t
+        s.last_accepted_t, s.jump_since_t = t, None
+
+    def _recent_jump(self, t: float) -> bool:
+        """A followed jump is remembered for ``max_jump_s``."""
+        jump = self.state.followed_jump
+        return jump is not None and t - jump[0] <= self.config.max_jump_s
+
+    def _jumps_back(self, t: float, innovation: Array, sigma_m: float) -> bool:
+        """The fixes jump back by about a jump the filter followed not long ago: that jump
+        was a non-line-of-sight run, and this is the track again."""
+        s, cfg = self.state, self.config
+        if s.followed_jump is None or not self._recent_jump(t):
+            return False
+        back = math.hypot(innovation[0] + s.followed_jump[1],
+                          innovation[1] + s.followed_jump[2])
+        if back > max(3.0 * sigma_m, 0.3 * math.hypot(*s.followed_jump[1:])):
+            return False
+        s.followed_jump = None
+        return True
+
+    def _jumped(self, t: float, nis: float) -> bool:
+        """Refuse a fix outright (no pull, no widening) as part of a jump: the filter had
+        been tracking GPS without a break for at least ``track_settled_s`` when the fixes
+        leapt away, which dead reckoning cannot do in a second and a non-line-of-sight run
+        does. The run is refused for as long as the track had lasted, ``max_jump_s`` at most
+        (a track that began on biased fixes is not trusted longer than it was followed);
+        the filter's own uncertainty grows meanwhile, so that a real error of the estimate
+        gets through the gate sooner."""
+        s, cfg = self.state, self.config
+        if not math.isfinite(nis):
+            return False
+        if s.jump_since_t is not None:
+            return t - s.jump_since_t < s.jump_limit_s
+        if s.tracking_since_t is None or s.last_accepted_t is None or \
+                t - s.last_accepted_t > cfg.track_gap_s:
+            return False
+        tracked_s = s.last_accepted_t - s.tracking_since_t
+        if tracked_s < cfg.track_settled_s:
+            return False
+        s.jump_since_t, s.jump_limit_s = t, cfg.max_jump_s
+        return True
 
     def _gps_sigma_learnt(self, fix: GpsFix) -> float:
         """The fix's sigma, scaled by the running mean of the NIS (innovation-based
@@ -403,7 +495,8 @@ class RoadFilter:
         s, cfg = self.state, self.config
         z, h, H, R = m
         s.gated_fixes += 1
-        s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
+        if s.first_gated_t is None:
+            s.first_gated_t, s.gated_offset_m = fix.t, (float(z[0] - h[0]), float(z[1] - h[1]))
         if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
             s.initialized = False  # heading and speed are not to be trusted either
             s.first_fix = (fix.t, east, north, self._sigma_m(fix))

@@ -1,0 +1,80 @@
+"""Robust GPS handling of the road filter on a straight drive with known truth (issue 15):
+a jump away from a settled track is refused, a followed jump that comes back is left at once,
+and the gyro bias is known from the standstill before the drive."""
+
+import math
+
+import numpy as np
+
+from navsvc.fusion import FusionConfig
+from navsvc.fusion.road.filter import RoadFilter
+from navsvc.fusion.road.motion import GYRO_BIAS
+from navsvc.types import GpsFix, ImuSample, OdometerSample, Packet
+from roadgraph import LocalFrame
+
+FRAME = LocalFrame.for_point(7.42, 43.73)
+SPEED_MPS = 10.0
+STILL_S = 10.0
+GYRO_BIAS_RPS = math.radians(0.5)
+
+
+def _north_m(t: float) -> float:
+    return max(t - STILL_S, 0.0) * SPEED_MPS
+
+
+def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
+           seed: int = 1) -> list[Packet]:
+    """Stand still, then drive north at 10 m/s: gyro 100 Hz with a bias, odometer speed at
+    10 Hz, a fix a second (1 m noise, no course); ``jumps`` adds (start, end, east offset)."""
+    rng = np.random.default_rng(seed)
+    packets: list[Packet] = []
+    for k in range(int(duration_s * 100)):
+        t = k / 100.0
+        packets.append(ImuSample(t, yaw_rate_rps=GYRO_BIAS_RPS + rng.normal(0.0, 0.002)))
+        if k % 10 == 0:
+            packets.append(OdometerSample(t, speed_mps=SPEED_MPS if t > STILL_S else 0.0))
+        if k % 100 == 0:
+            east = sum(offset for start, end, offset in jumps if start <= t < end)
+            lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, 1.0),
+                                      _north_m(t) + rng.normal(0.0, 1.0))
+            packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0))
+    return packets
+
+
+def _run(packets: list[Packet]) -> tuple[RoadFilter, list[tuple[float, float, str]]]:
+    """The filter after the drive, and (t, error m, GPS reason) at every fix."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    out = []
+    for p in packets:
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and e.gps is not None:
+                out.append((p.t, math.hypot(e.x_m, e.y_m - _north_m(p.t)), e.gps.reason))
+    return road, out
+
+
+def test_standstill_gives_the_gyro_bias_at_start_up() -> None:
+    road, _ = _run(_drive(STILL_S + 30.0, []))
+    assert road.state.initialized
+    assert abs(road.state.x[GYRO_BIAS] - GYRO_BIAS_RPS) < math.radians(0.02)
+
+
+def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:
+    _, fixes = _run(_drive(120.0, [(60.0, 90.0, 50.0)]))
+    during = [f for f in fixes if 60.0 <= f[0] < 90.0]
+    assert all(err < 5.0 for _, err, _ in during), during
+    assert all(reason.startswith("refused: jumped") for _, _, reason in during)
+    after = [f for f in fixes if f[0] >= 91.0]
+    assert all(reason in ("accepted", "down-weighted") and err < 3.0
+               for _, err, reason in after), after
+
+
+def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
+    """Fixes that come back from a gap 50 m off (the track not settled yet) are followed;
+    when they jump back by the same offset, the filter is back on them at that fix."""
+    packets = [p for p in _drive(100.0, [(50.0, 80.0, 50.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 50.0)]
+    _, fixes = _run(packets)
+    assert [err > 30.0 for t, err, _ in fixes if 70.0 <= t < 80.0] == [True] * 10
+    back = [f for f in fixes if f[0] >= 80.0]
+    assert back[0][2] == "re-acquired: the fixes jumped back"
+    assert all(err < 5.0 for _, err, _ in back), back
