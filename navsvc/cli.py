@@ -300,7 +300,8 @@ def format_evaluation(e: Evaluation) -> str:
     lines = [f"{'error (m)':<22}{'RMS':>9}{'95%':>9}{'max':>9}{'n':>8}",
              row("output position", e.position), row("fused (unconstrained)", e.fused),
              row("raw GPS", e.raw_gps),
-             f"fused / raw GPS RMS: {e.fused_to_raw_ratio:.2f}",
+             row("fused at GPS epochs", e.fused_at_gps),
+             f"fused / raw GPS RMS at the same epochs: {e.fused_to_raw_ratio:.2f}",
              f"heading error: RMS {e.heading_rms_deg:.2f} deg, 95% {e.heading_p95_deg:.2f} deg"]
     for o in e.outages:
         lines.append(f"GPS outage {o.start_s:.0f}-{o.end_s:.0f} s: {o.distance_m:.0f} m driven, "

@@ -6,6 +6,9 @@ estimate's time. Errors are horizontal distances in metres.
 
 * position error of the output (``lat``/``lon``: on the road when matched) and of the fusion
   alone (``fused_lat``/``fused_lon``), with the raw GPS error of the same drive beside them;
+  their ratio compares the two at the same epochs: each GPS fix against the fused estimate
+  within ``SAME_EPOCH_S`` of it (over the whole drive the fused error would include the
+  outages and tunnels, where raw GPS has no error to compare because it has no fix);
 * drift in each GPS outage (a gap in the drive's GPS packets): the fused error when GPS returns
   as a share of the distance driven in the gap;
 * heading error while moving;
@@ -29,6 +32,7 @@ from roadgraph import LocalFrame
 MIN_OUTAGE_S = 3.0  # a GPS gap longer than this is an outage
 NODE_TOLERANCE_M = 5.0  # within this of an intersection, the roads on both sides are right
 MIN_SPEED_FOR_HEADING_MPS = 1.0
+SAME_EPOCH_S = 0.5  # a fused estimate this close to a fix is the fix's epoch
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,8 @@ class Evaluation:
     position: ErrorStats  # the output position (matched when on a road)
     fused: ErrorStats  # the fusion engine alone
     raw_gps: ErrorStats  # the GPS packets of the drive
+    fused_at_gps: ErrorStats  # the fused estimates at the fixes' epochs ...
+    raw_at_fused: ErrorStats  # ... and the raw GPS at the same epochs
     heading_rms_deg: float
     heading_p95_deg: float
     outages: tuple[OutageResult, ...]
@@ -73,7 +79,8 @@ class Evaluation:
 
     @property
     def fused_to_raw_ratio(self) -> float:
-        return self.fused.rms_m / self.raw_gps.rms_m if self.raw_gps.n else math.nan
+        return self.fused_at_gps.rms_m / self.raw_at_fused.rms_m if self.raw_at_fused.n \
+            else math.nan
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
@@ -142,6 +149,21 @@ def _points(records: list[dict[str, Any]], frame: LocalFrame, lat: str,
     return frame.coords_to_local(np.array([(r[lon], r[lat]) for r in records]))
 
 
+def _same_epochs(est_t: np.ndarray, fused_err: np.ndarray, gps_t: np.ndarray,
+                 raw_err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fused and raw errors at the fixes with a fused estimate within SAME_EPOCH_S."""
+    if not len(est_t) or not len(gps_t):
+        return np.zeros(0), np.zeros(0)
+    order = np.argsort(est_t, kind="stable")
+    t_sorted = est_t[order]
+    right = np.clip(np.searchsorted(t_sorted, gps_t), 0, len(t_sorted) - 1)
+    left = np.clip(right - 1, 0, len(t_sorted) - 1)
+    nearest = np.where(np.abs(t_sorted[left] - gps_t) <= np.abs(t_sorted[right] - gps_t),
+                       left, right)
+    close = np.abs(t_sorted[nearest] - gps_t) <= SAME_EPOCH_S
+    return fused_err[order[nearest[close]]], raw_err[close]
+
+
 def _outages(gps_t: np.ndarray, truth: _Truth, est_t: np.ndarray,
              fused_err: np.ndarray) -> tuple[OutageResult, ...]:
     out = []
@@ -198,6 +220,7 @@ def evaluate(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]) -> Ev
     gps_t = np.array([r["t"] for r in gps])
     raw_err = _errors(truth, gps_t, _points(gps, frame, "lat", "lon"))
 
+    fused_at_gps, raw_at_fused = _same_epochs(est_t, fused_err, gps_t, raw_err)
     _, true_heading = truth.at(est_t)
     moving = np.interp(est_t, truth.t, truth.speed_mps) >= MIN_SPEED_FOR_HEADING_MPS
     est_heading = np.radians([r["heading_deg"] for r in within]) if within else np.zeros(0)
@@ -210,7 +233,8 @@ def evaluate(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]) -> Ev
     correct, total = _intersections(truth, est_t, est_road)
     return Evaluation(
         position=ErrorStats.of(position_err), fused=ErrorStats.of(fused_err),
-        raw_gps=ErrorStats.of(raw_err),
+        raw_gps=ErrorStats.of(raw_err), fused_at_gps=ErrorStats.of(fused_at_gps),
+        raw_at_fused=ErrorStats.of(raw_at_fused),
         heading_rms_deg=float(np.sqrt(np.mean(heading_err ** 2))) if len(heading_err)
         else math.nan,
         heading_p95_deg=float(np.percentile(heading_err, 95)) if len(heading_err) else math.nan,

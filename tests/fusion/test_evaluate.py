@@ -58,6 +58,20 @@ def test_known_offsets() -> None:
     assert (e.intersections_correct, e.intersections_total) == (1, 1)
 
 
+def test_ratio_compares_fused_and_raw_at_the_same_epochs() -> None:
+    """An estimate 40 m off in the GPS gap counts in the fused RMS over the drive, not in
+    the ratio: raw GPS has no error there to compare it with."""
+    estimates = _estimates(3.0, 0.0, edge_from=50)
+    for r in estimates:
+        if 50.0 < r["t"] < 70.0:
+            r["fused_lat"], r["fused_lon"] = _ll(40.0, 10.0 * r["t"])
+    e = evaluate(_drive(), estimates)
+    assert e.fused.rms_m > 15.0
+    assert e.fused_at_gps.rms_m == pytest.approx(3.0, abs=0.01)
+    assert e.raw_at_fused.n == e.raw_gps.n == 81
+    assert e.fused_to_raw_ratio == pytest.approx(0.75, abs=0.01)
+
+
 def test_heading_wraps_and_wrong_road_counts() -> None:
     e = evaluate(_drive(), _estimates(0.0, 358.0, edge_from=60))
     assert e.heading_rms_deg == pytest.approx(2.0, abs=1e-6)
