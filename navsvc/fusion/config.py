@@ -53,6 +53,8 @@ class FusionConfig:
     odometer_window_s: float = 0.25  # speed from distance over at least this long (ticks)
     initial_heading_min_move_m: float = 15.0  # heading from two fixes at least this far apart
     initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas apart
+    initial_heading_max_baseline_s: float = 10.0  # ... and at most this long apart
+    initial_heading_max_turn_rad: float = math.radians(10.0)  # ... with less turn between
     initial_speed_sigma_mps: float = 5.0  # speed at start-up when nothing measured it
     odo_scale_limits: tuple[float, float] = (0.7, 1.3)  # a wheel odometer is never further off
     reorder_window_s: float = 0.25

@@ -79,6 +79,7 @@ class RoadState:
     calibrating: bool = False  # the sensor biases and scales are states (since the start)
     first_fix: tuple[float, float, float, float] | None = None  # (t, x, y, sigma) awaiting a
     # heading
+    turned_rad: float = 0.0  # the gyro's turn since first_fix
     odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
     last_odo: odometer.Window | None = None  # odometer speed window start
     last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
@@ -251,12 +252,17 @@ class RoadFilter:
 
     def _remember_still_gyro(self, packet: Packet) -> None:
         """Before start-up, average the gyro while the car stands still: the turn-on bias
-        is then known when the filter starts (it can be a degree a second)."""
+        is then known when the filter starts (it can be a degree a second). While moving,
+        add up the turn since the first fix of a start-up heading."""
         s = self.state
-        if isinstance(packet, ImuSample) and self._gyro and packet.yaw_rate_rps is not None \
-                and s.still_samples >= self.config.stationary_after_samples:
-            n, total = s.still_gyro
+        if not isinstance(packet, ImuSample) or not self._gyro or packet.yaw_rate_rps is None:
+            return
+        n, total = s.still_gyro
+        if s.still_samples >= self.config.stationary_after_samples:
             s.still_gyro = (n + 1, total + packet.yaw_rate_rps)
+        elif s.t is not None and packet.t > s.t:
+            bias = total / n if n else 0.0
+            s.turned_rad += (packet.yaw_rate_rps - bias) * (packet.t - s.t)
 
     def _remember_odometer(self, packet: Packet) -> None:
         if isinstance(packet, OdometerSample):
@@ -297,15 +303,19 @@ class RoadFilter:
         if heading is None and first is not None and fix.t > first[0]:
             t0, e0, n0, sigma0 = first
             moved, spread = math.hypot(east - e0, north - n0), math.hypot(sigma, sigma0)
-            if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing():
-                first = None  # an outlier, or the fixes of a car standing still: start over
+            if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing() or \
+                    fix.t - t0 > cfg.initial_heading_max_baseline_s or \
+                    abs(s.turned_rad) > cfg.initial_heading_max_turn_rad:
+                first = None  # an outlier, a car standing still, or fixes too far apart in
+                # time or turn for the line between them to be the heading: start over
             elif moved >= max(cfg.initial_heading_min_move_m,
                               cfg.initial_heading_min_move_sigmas * spread):
                 heading = bearing_rad(e0, n0, east, north), (spread / moved) ** 2
                 if speed is None:
                     speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
-            s.first_fix = first or (fix.t, east, north, sigma)
+            if first is None:
+                s.first_fix, s.turned_rad = (fix.t, east, north, sigma), 0.0
             s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
             return
         self._reset_from_gps(fix, east, north, heading,
