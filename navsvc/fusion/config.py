@@ -34,6 +34,8 @@ class FusionConfig:
     gps_default_sigma_m: float = 5.0  # a fix that says nothing of its accuracy (the learnt
     # scale widens it when the fixes are further off)
     gps_velocity_sigma_mps: float = 0.5
+    gps_latency_s: float = 0.15  # a fix is where the car was this long before its time
+    # stamp (receivers send it 0.1-0.2 s after the measurement)
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
     gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
     gps_nis_memory_fixes: float = 30.0  # ekf: the fixes the GPS error level is learnt over
@@ -65,6 +67,8 @@ class FusionConfig:
     # give the starting gyro bias (their mean)
     still_gyro_bias_sigma_rps: float = 2e-4  # ... with this sigma on top of the mean's
     initial_odo_scale_sigma: float = 0.05
+    initial_gyro_scale_sigma: float = 0.02  # MEMS gyros are 1-3 % off
+    gyro_scale_error_limit: float = 0.1  # ... and never more than this
     rules: RuleParams = RuleParams()
     fuzzy: FuzzySets = THESIS_SETS
 

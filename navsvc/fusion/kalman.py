@@ -124,12 +124,12 @@ def correct_compiled(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
             nis += y[i] * S_inv[i, j] * y[j]
     if not nis <= max_nis:
         return x, P, nis
-    x_new, P_new = _joseph(x, P, y, H, R, matmul(PHt, S_inv))
+    x_new, P_new = joseph(x, P, y, H, R, matmul(PHt, S_inv))
     return x_new, P_new, nis
 
 
 @jit
-def _joseph(x: Array, P: Array, y: Array, H: Array, R: Array,
+def joseph(x: Array, P: Array, y: Array, H: Array, R: Array,
             K: Array) -> tuple[Array, Array]:  # pragma: no cover - compiled
     x_new = x + matmul(K, y.reshape(-1, 1)).ravel()
     I_KH = np.eye(len(x)) - matmul(K, H)
@@ -140,4 +140,15 @@ def _joseph(x: Array, P: Array, y: Array, H: Array, R: Array,
 def fixed_gain_update(x: Array, P: Array, y: Array, H: Array, R: Array,
                       K: Array) -> tuple[Array, Array]:
     """Update with a prescribed gain (the thesis's weighted sums), Joseph form for ``P``."""
-    return _joseph(x, P, _f64(y), _f64(H), _f64(R), _f64(K))
+    return joseph(x, P, _f64(y), _f64(H), _f64(R), _f64(K))
+
+
+def correct_leaving(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
+                    unchanged: tuple[int, ...]) -> tuple[Array, Array]:
+    """The Kalman update with a zero gain for the states ``unchanged`` (a Schmidt, or
+    "consider", update: the Joseph form keeps ``P`` right for that gain). For a measurement
+    that says nothing of those states although its linearisation seems to."""
+    PHt = P @ H.T
+    K = PHt @ np.linalg.inv(H @ PHt + R)
+    K[list(unchanged), :] = 0.0
+    return joseph(x, P, _f64(z - h), _f64(H), _f64(R), _f64(K))

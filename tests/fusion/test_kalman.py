@@ -63,20 +63,28 @@ def test_inverse_matches_numpy(values: list[float]) -> None:
 
 state = st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0, 6.28),
                   st.floats(0, 40), st.floats(-1, 1), st.floats(-0.05, 0.05),
-                  st.floats(0.9, 1.1), st.floats(-0.5, 0.5))
+                  st.floats(0.9, 1.1), st.floats(-0.5, 0.5), st.floats(-0.05, 0.05))
 
 
 @given(state, st.floats(0.0, 0.35), st.floats(-2, 2), st.one_of(st.none(), st.floats(-5, 5)))
-def test_predict_with_gyro_is_predict_then_the_gyro_update(
+def test_predict_with_gyro_is_predict_then_the_rate_from_the_gyro(
         x0: tuple[float, ...], dt: float, rate: float, accel: float | None) -> None:
-    """The fused compiled step gives what its two parts give."""
+    """The fused compiled step against its two parts written plainly: the rate becomes
+    ``-(gyro - bias) / (1 + scale error)``, its covariance that of this linear map."""
     x = np.array(x0)
-    P = np.diag([4.0, 4.0, 0.01, 1.0, 0.01, 1e-4, 1e-3, 1e-2])
+    P = np.diag([4.0, 4.0, 0.01, 1.0, 0.01, 1e-4, 1e-3, 1e-2, 4e-4])
     noise = motion.ProcessNoise()
     fused_x, fused_P = measurements.predict_with_gyro(x, P, dt, 0.1, accel, noise, rate,
                                                       0.005)
     x1, P1 = (x, P) if dt <= 1e-9 else motion.predict(x, P, dt, 0.1, accel, noise)
-    x2, P2, _ = kalman.correct(x1, P1, *measurements.GyroRate(rate, 0.005).model(x1))
-    x2[motion.HEADING] %= 2.0 * np.pi
+    gain = 1.0 + x1[motion.GYRO_SCALE]
+    A = np.eye(motion.N_STATES)
+    A[motion.HEADING_RATE, motion.HEADING_RATE] = 0.0
+    A[motion.HEADING_RATE, motion.GYRO_BIAS] = 1.0 / gain
+    A[motion.HEADING_RATE, motion.GYRO_SCALE] = (rate - x1[motion.GYRO_BIAS]) / gain ** 2
+    P2 = A @ P1 @ A.T
+    P2[motion.HEADING_RATE, motion.HEADING_RATE] += 0.005 ** 2 / gain ** 2
+    x2 = x1.copy()
+    x2[motion.HEADING_RATE] = -(rate - x1[motion.GYRO_BIAS]) / gain
     np.testing.assert_allclose(fused_x, x2, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(fused_P, P2, rtol=1e-12, atol=1e-15)

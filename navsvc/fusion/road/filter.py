@@ -42,6 +42,7 @@ from navsvc.fusion.road.measurements import (
 from navsvc.fusion.road.motion import (
     ACCEL_BIAS,
     GYRO_BIAS,
+    GYRO_SCALE,
     HEADING,
     HEADING_RATE,
     N_STATES,
@@ -205,6 +206,8 @@ class RoadFilter:
         s.x[HEADING] %= 2.0 * math.pi
         low, high = self.config.odo_scale_limits
         s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
+        limit = self.config.gyro_scale_error_limit
+        s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
         return nis
 
     # --- dead reckoning ------------------------------------------------------------------
@@ -228,7 +231,10 @@ class RoadFilter:
         if self._odometer_still(packet):
             s.still_samples += 1
             if s.still_samples >= cfg.stationary_after_samples:
-                self._update(ZeroMotion())
+                # a standstill says nothing of the gyro's scale error (the rate's Jacobian
+                # by it is the gyro noise, which an update would read as information)
+                s.x, s.P = kalman.correct_leaving(s.x, s.P, *ZeroMotion().model(s.x),
+                                                  unchanged=(GYRO_SCALE,))
                 return
         else:
             s.still_samples = 0
@@ -367,9 +373,11 @@ class RoadFilter:
             s.calibrating = True
             bias, bias_var = self._initial_gyro_bias()
             s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, bias, 1.0
+            s.x[GYRO_SCALE] = 0.0
             for i, var in ((HEADING_RATE, 0.1 ** 2), (GYRO_BIAS, bias_var),
                            (ODO_SCALE, cfg.initial_odo_scale_sigma ** 2),
-                           (ACCEL_BIAS, 0.1 ** 2)):
+                           (ACCEL_BIAS, 0.1 ** 2),
+                           (GYRO_SCALE, cfg.initial_gyro_scale_sigma ** 2)):
                 _reset_variance(s.P, i, var)
         s.gated_fixes, s.first_gated_t, s.jump_since_t = 0, None, None
 
@@ -413,7 +421,7 @@ class RoadFilter:
         s, cfg = self.state, self.config
         east, north = self._local(fix)
         sigma = self._gps_sigma_learnt(fix) * math.sqrt(max(1.0, 1.0 / max(dt_s, 1e-3)))
-        z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
+        z, h, H, R = GpsPosition(east, north, sigma, cfg.gps_latency_s).model(s.x)
         y = z - h
         nis = float(y @ np.linalg.solve(H @ s.P @ H.T + R, y))
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
@@ -529,7 +537,8 @@ class RoadFilter:
         (after a long stop or outage the filter's heading can be far off and overconfident)."""
         s, cfg = self.state, self.config
         gate = None if self.profile.gps_alone else 2
-        nis = self._update(GpsVelocity(speed_mps, course_rad, cfg.gps_velocity_sigma_mps),
+        nis = self._update(GpsVelocity(speed_mps, course_rad, cfg.gps_velocity_sigma_mps,
+                                       cfg.gps_latency_s),
                            gate_dof=gate)
         if nis is not None:
             s.gated_courses = 0

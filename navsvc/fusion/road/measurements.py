@@ -20,6 +20,7 @@ from navsvc.fusion.kalman import Linearised
 from navsvc.fusion.road.motion import (
     ACCEL_BIAS,
     GYRO_BIAS,
+    GYRO_SCALE,
     HEADING,
     HEADING_RATE,
     N_STATES,
@@ -41,36 +42,53 @@ def _row(**entries: float) -> Array:
 
 
 _INDEX = {"x": X_M, "y": Y_M, "heading": HEADING, "speed": SPEED, "rate": HEADING_RATE,
-          "gyro_bias": GYRO_BIAS, "odo_scale": ODO_SCALE, "accel_bias": ACCEL_BIAS}
-GYRO_RATE_H = _row(rate=-1.0, gyro_bias=1.0)  # constant: made once (a gyro sample is 100 Hz)
-GYRO_RATE_H.flags.writeable = False
+          "gyro_bias": GYRO_BIAS, "odo_scale": ODO_SCALE, "accel_bias": ACCEL_BIAS,
+          "gyro_scale": GYRO_SCALE}
 
 
 @jit
-def gyro_rate_h(x: Array) -> float:  # pragma: no cover - compiled
-    """The gyro rate the state predicts (:class:`GyroRate`; compiled, for the fused step of
-    :func:`navsvc.fusion.road.motion.predict_with_gyro`)."""
-    return float(-x[HEADING_RATE] + x[GYRO_BIAS])
+def gyro_input(x: Array, yaw_rate_left_rps: float) -> tuple[float, Array]:  # pragma: no cover
+    """The heading rate a gyro sample gives at the state's bias and scale error,
+    ``-(rate - bias) / (1 + scale error)``, and its Jacobian (a row over the state)."""
+    gain = 1.0 + x[GYRO_SCALE]
+    unbiased = yaw_rate_left_rps - x[GYRO_BIAS]
+    J = np.zeros(N_STATES)
+    J[GYRO_BIAS] = 1.0 / gain
+    J[GYRO_SCALE] = unbiased / gain ** 2
+    return -unbiased / gain, J
 
 
 @dataclass(frozen=True)
 class GyroRate:
-    """The gyro's z-up rate: ``-heading_rate + bias``."""
+    """The gyro's z-up rate, ``-(1 + scale error) x heading_rate + bias``.
+
+    The road filter takes it as the input that turns the heading
+    (:func:`predict_with_gyro`), not as a measurement: as a measurement of a heading-rate
+    state its Jacobian changes with the turn rate, which an EKF takes for information on
+    the scale error that the gyro alone cannot give (the estimate then ran to its limit and
+    the heading lost 13 degrees in a hairpin). The model stays for comparisons with filters
+    that do fuse it as a measurement (``bench/fusion_bench.py``)."""
 
     rate_left_rps: float
     sigma_rps: float
 
     def model(self, x: Array) -> Linearised:
-        return (np.array([self.rate_left_rps]), np.array([gyro_rate_h(x)]),
-                          GYRO_RATE_H, np.array([[self.sigma_rps ** 2]]))
+        gain = 1.0 + x[GYRO_SCALE]
+        return (np.array([self.rate_left_rps]),
+                np.array([-gain * x[HEADING_RATE] + x[GYRO_BIAS]]),
+                _row(rate=-gain, gyro_bias=1.0, gyro_scale=-x[HEADING_RATE]),
+                np.array([[self.sigma_rps ** 2]]))
 
 
 def predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
                       accel_fwd_mps2: float | None, noise: ProcessNoise,
                       yaw_rate_left_rps: float, sigma_rps: float) -> tuple[Array, Array]:
-    """:func:`~navsvc.fusion.road.motion.predict`, then the :class:`GyroRate` update (not
-    gated), in one compiled call: the filter's step at every gyro sample, where two calls and
-    the measurement's small arrays cost more than the arithmetic."""
+    """:func:`~navsvc.fusion.road.motion.predict`, then the heading rate from the gyro
+    sample (:func:`gyro_input`), in one compiled call: the filter's step at every gyro
+    sample. The rate becomes a function of the bias and scale-error states plus the gyro's
+    noise, ``P <- A P Aᵀ + noise`` with ``A`` the identity whose rate row is the Jacobian;
+    the next steps carry that into heading and position, and GPS then corrects the bias and
+    the scale error through those correlations."""
     return _predict_with_gyro(x, P, dt_s, max_step_s, *model_args(accel_fwd_mps2, noise),
                               yaw_rate_left_rps, sigma_rps ** 2)
 
@@ -82,12 +100,16 @@ def _predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
                        ) -> tuple[Array, Array]:  # pragma: no cover - compiled
     x, P = predict_compiled(x, P, dt_s, max_step_s, accel_fwd_mps2, densities,
                             turn_rate_tau_s)
-    x_new, P_new, nis = kalman.correct_compiled(
-        x, P, np.array([yaw_rate_left_rps]), np.array([gyro_rate_h(x)]), GYRO_RATE_H,
-        np.array([[variance]]), np.inf)
-    if nis <= np.inf:  # a NaN innovation leaves the state as it was
-        x_new[HEADING] %= 2.0 * math.pi
-    return x_new, P_new
+    rate, J = gyro_input(x, yaw_rate_left_rps)
+    if not math.isfinite(rate):  # a NaN sample leaves the state as it was
+        return x, P
+    A = np.eye(N_STATES)
+    A[HEADING_RATE, :] = J
+    P_new = kalman.matmul(kalman.matmul(A, P), A.T)
+    P_new[HEADING_RATE, HEADING_RATE] += variance / (1.0 + x[GYRO_SCALE]) ** 2
+    x_new = x.copy()
+    x_new[HEADING_RATE] = rate
+    return x_new, 0.5 * (P_new + P_new.T)
 
 
 @dataclass(frozen=True)
@@ -142,42 +164,51 @@ class SteeringRate:
                           np.array([[sigma ** 2]]))
 
 
-_GPS_POSITION_H = np.zeros((2, N_STATES))
-_GPS_POSITION_H[0, X_M] = _GPS_POSITION_H[1, Y_M] = 1.0
-_GPS_POSITION_H.flags.writeable = False
-
-
 @dataclass(frozen=True)
 class GpsPosition:
-    """A GPS fix in the map frame (east, north)."""
+    """A GPS fix in the map frame (east, north), of where the car was ``latency_s`` before
+    the fix's time stamp (receivers send a fix a tenth of a second or more after its
+    measurement): the position then, ``latency_s`` of driving back along the heading."""
 
     east_m: float
     north_m: float
     sigma_m: float
+    latency_s: float = 0.0
 
     def model(self, x: Array) -> Linearised:
-        variance = self.sigma_m ** 2
-        return (np.array([self.east_m, self.north_m]), np.array([x[X_M], x[Y_M]]),
-                          _GPS_POSITION_H, np.array([[variance, 0.0], [0.0, variance]]))
+        variance, lag = self.sigma_m ** 2, self.latency_s
+        s, c, v = math.sin(x[HEADING]), math.cos(x[HEADING]), x[SPEED]
+        H = np.zeros((2, N_STATES))
+        H[0, X_M] = H[1, Y_M] = 1.0
+        H[0, SPEED], H[0, HEADING] = -lag * s, -lag * v * c
+        H[1, SPEED], H[1, HEADING] = -lag * c, lag * v * s
+        return (np.array([self.east_m, self.north_m]),
+                np.array([x[X_M] - lag * v * s, x[Y_M] - lag * v * c]), H,
+                np.array([[variance, 0.0], [0.0, variance]]))
 
 
 @dataclass(frozen=True)
 class GpsVelocity:
-    """GPS ground velocity (east, north): ``speed x (sin heading, cos heading)``."""
+    """GPS ground velocity (east, north): ``speed x (sin, cos)`` of the heading
+    ``latency_s`` before the time stamp (``heading - heading_rate x latency_s``)."""
 
     speed_mps: float
     course_rad: float
     sigma_mps: float
+    latency_s: float = 0.0
 
     def model(self, x: Array) -> Linearised:
-        s, c = math.sin(x[HEADING]), math.cos(x[HEADING])
+        then = x[HEADING] - x[HEADING_RATE] * self.latency_s
+        s, c = math.sin(then), math.cos(then)
         H = np.zeros((2, N_STATES))
         H[0, SPEED], H[0, HEADING] = s, x[SPEED] * c
         H[1, SPEED], H[1, HEADING] = c, -x[SPEED] * s
+        H[0, HEADING_RATE] = -self.latency_s * H[0, HEADING]
+        H[1, HEADING_RATE] = -self.latency_s * H[1, HEADING]
         z = np.array([self.speed_mps * math.sin(self.course_rad),
                       self.speed_mps * math.cos(self.course_rad)])
         return (z, np.array([x[SPEED] * s, x[SPEED] * c]), H,
-                          np.eye(2) * self.sigma_mps ** 2)
+                np.eye(2) * self.sigma_mps ** 2)
 
 
 @dataclass(frozen=True)

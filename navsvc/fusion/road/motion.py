@@ -15,6 +15,7 @@ State ``x`` (8), units in brackets::
                      steering-angle bias [rad] instead
     6 ODO_SCALE      odometer scale factor (measured = scale x true) [-]
     7 ACCEL_BIAS     forward accelerometer bias [m/s²]
+    8 GYRO_SCALE     gyro scale factor error (measured = (1 + this) x true rate) [-]
 
 The measurement models over this state are in :mod:`navsvc.fusion.road.measurements`.
 """
@@ -30,8 +31,8 @@ import numpy as np
 from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
 
-X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS = range(8)
-N_STATES = 8
+X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE = range(9)
+N_STATES = 9
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,7 @@ class ProcessNoise:
     gyro_bias_drift_rps_per_sqrt_s: float = 2e-4
     odo_scale_drift_per_sqrt_s: float = 1e-5
     accel_bias_drift_mps2_per_sqrt_s: float = 1e-3
+    gyro_scale_drift_per_sqrt_s: float = 1e-5
     turn_rate_tau_s: float | None = None  # GPS only: the turn rate decays with this time
     accel_integration_mps2: float = 0.3  # speed noise when it integrates the accelerometer
 
@@ -52,7 +54,8 @@ class ProcessNoise:
         return np.array([0.0, 0.0, 0.0, self.accel_mps2 ** 2, self.heading_accel_rps2 ** 2,
                          self.gyro_bias_drift_rps_per_sqrt_s ** 2,
                          self.odo_scale_drift_per_sqrt_s ** 2,
-                         self.accel_bias_drift_mps2_per_sqrt_s ** 2])
+                         self.accel_bias_drift_mps2_per_sqrt_s ** 2,
+                         self.gyro_scale_drift_per_sqrt_s ** 2])
 
     @cached_property
     def densities_with_accel(self) -> Array:
