@@ -66,7 +66,12 @@ from navsvc.types import (
 )
 from roadgraph.geometry import LocalFrame, bearing_rad
 
-MAX_PLAUSIBLE_SPEED_MPS = 70.0  # two fixes implying more are not the same car's track
+MAX_PLAUSIBLE_SPEED_MPS = 70.0
+STANDSTILL_LEAVES = (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE)  # a standstill update tells
+# the gyro bias, not these: the scales are unobservable at rest (the rate's Jacobian by the
+# gyro scale is the gyro noise, which the update read as information); and correcting
+# heading and position through their correlation with a bias that drifts moved a car at rest
+# 30 m and 6 degrees after an outage  # two fixes implying more are not the same car's track
 
 
 @dataclass
@@ -231,10 +236,8 @@ class RoadFilter:
         if self._odometer_still(packet):
             s.still_samples += 1
             if s.still_samples >= cfg.stationary_after_samples:
-                # a standstill says nothing of the gyro's scale error (the rate's Jacobian
-                # by it is the gyro noise, which an update would read as information)
                 s.x, s.P = kalman.correct_leaving(s.x, s.P, *ZeroMotion().model(s.x),
-                                                  unchanged=(GYRO_SCALE,))
+                                                  unchanged=STANDSTILL_LEAVES)
                 return
         else:
             s.still_samples = 0
