@@ -34,14 +34,18 @@ class FusionConfig:
     gps_default_sigma_m: float = 5.0  # a fix that says nothing of its accuracy (the learnt
     # scale widens it when the fixes are further off)
     gps_velocity_sigma_mps: float = 0.5
-    gps_latency_s: float = 0.15  # a fix is where the car was this long before its time
-    # stamp (receivers send it 0.1-0.2 s after the measurement)
+    initial_gps_latency_s: float = 0.1  # a fix is where the car was this long before its
+    # time stamp (a state: learnt from the fixes; clients stamping at reception are
+    # 0.1-0.2 s late, those using the receiver's own time 0)
+    initial_gps_latency_sigma_s: float = 0.1
+    max_gps_latency_s: float = 0.5
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
     gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
     gps_nis_memory_fixes: float = 30.0  # ekf: the fixes the GPS error level is learnt over
     gps_huber_nis: float = 5.99  # ekf: a fix past this NIS (95 %, 2 dof) pulls as one at it
-    gps_bias_share: float = 0.7  # ekf: of a fix's sigma, the part that is a slowly changing
-    # error: averaging fixes does not remove it, so the reported position sigma includes it
+    gps_bias_share: float = 0.85  # ekf: of a fix's sigma, the part that is a slowly changing
+    # error (two bias states carry it; averaging fixes does not remove it)
+    gps_bias_tau_s: float = 30.0  # ekf: its time constant (receivers: 10-60 s)
     track_gap_s: float = 3.0  # ekf: fixes further apart than this break the GPS track
     track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump
     max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused as long as

@@ -43,11 +43,13 @@ def numeric_jacobian(f: Callable[[Array], Array], x: Array, steps: Array) -> Arr
 
 
 # --- the road filter -----------------------------------------------------------------------
-ROAD_STEPS = np.array([1e-3, 1e-3, 1e-6, 1e-5, 1e-6, 1e-6, 1e-6, 1e-5, 1e-6])
+ROAD_STEPS = np.array([1e-3, 1e-3, 1e-6, 1e-5, 1e-6, 1e-6, 1e-6, 1e-5, 1e-6, 1e-3, 1e-3,
+                       1e-6])
 road_state = st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0.2, 6.0),
                        st.floats(1.0, 40.0), st.floats(-0.5, 0.5), st.floats(-0.05, 0.05),
                        st.floats(0.9, 1.1), st.floats(-0.5, 0.5),
-                       st.floats(-0.05, 0.05)).map(np.array)
+                       st.floats(-0.05, 0.05), st.floats(-20.0, 20.0),
+                       st.floats(-20.0, 20.0), st.floats(0.0, 0.5)).map(np.array)
 
 
 @settings(max_examples=60, deadline=None)
@@ -67,10 +69,8 @@ road_measurements = st.one_of(
     st.builds(m.OdometerSpeed, st.floats(0, 40), st.just(0.15)),
     st.builds(m.LateralAccel, st.floats(-5, 5), st.just(0.3)),
     st.builds(m.SteeringRate, st.floats(-0.5, 0.5), st.floats(2.0, 4.0), st.just(0.005)),
-    st.builds(m.GpsPosition, st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0.1, 20),
-              st.floats(0.0, 0.5)),
-    st.builds(m.GpsVelocity, st.floats(0, 40), st.floats(0, 6.28), st.just(0.5),
-              st.floats(0.0, 0.5)),
+    st.builds(m.GpsPosition, st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0.1, 20)),
+    st.builds(m.GpsVelocity, st.floats(0, 40), st.floats(0, 6.28), st.just(0.5)),
     st.builds(m.CourseAndSpeed, st.floats(0.2, 6.0), st.floats(0, 40), st.just(0.1),
               st.just(0.5)),
     st.builds(m.ZeroMotion),

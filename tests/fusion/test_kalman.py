@@ -63,7 +63,8 @@ def test_inverse_matches_numpy(values: list[float]) -> None:
 
 state = st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.floats(0, 6.28),
                   st.floats(0, 40), st.floats(-1, 1), st.floats(-0.05, 0.05),
-                  st.floats(0.9, 1.1), st.floats(-0.5, 0.5), st.floats(-0.05, 0.05))
+                  st.floats(0.9, 1.1), st.floats(-0.5, 0.5), st.floats(-0.05, 0.05),
+                  st.floats(-10, 10), st.floats(-10, 10), st.floats(0.0, 0.5))
 
 
 @given(state, st.floats(0.0, 0.35), st.floats(-2, 2), st.one_of(st.none(), st.floats(-5, 5)))
@@ -72,7 +73,7 @@ def test_predict_with_gyro_is_predict_then_the_rate_from_the_gyro(
     """The fused compiled step against its two parts written plainly: the rate becomes
     ``-(gyro - bias) / (1 + scale error)``, its covariance that of this linear map."""
     x = np.array(x0)
-    P = np.diag([4.0, 4.0, 0.01, 1.0, 0.01, 1e-4, 1e-3, 1e-2, 4e-4])
+    P = np.diag([4.0, 4.0, 0.01, 1.0, 0.01, 1e-4, 1e-3, 1e-2, 4e-4, 9.0, 9.0, 0.01])
     noise = motion.ProcessNoise()
     fused_x, fused_P = measurements.predict_with_gyro(x, P, dt, 0.1, accel, noise, rate,
                                                       0.005)

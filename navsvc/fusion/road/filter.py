@@ -41,6 +41,10 @@ from navsvc.fusion.road.measurements import (
 )
 from navsvc.fusion.road.motion import (
     ACCEL_BIAS,
+    GPS_BIAS,
+    GPS_BIAS_E,
+    GPS_BIAS_N,
+    GPS_LATENCY,
     GYRO_BIAS,
     GYRO_SCALE,
     HEADING,
@@ -103,7 +107,8 @@ class RoadState:
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
-    gps_bias_var_m2: float = 0.0  # variance of the GPS error the filter cannot average out
+    gps_bias_t: float | None = None  # time of the GPS bias states
+    gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     last_gps_t: float | None = None
     last_output_t: float | None = None
@@ -213,6 +218,7 @@ class RoadFilter:
         s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
         limit = self.config.gyro_scale_error_limit
         s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
+        s.x[GPS_LATENCY] = min(max(s.x[GPS_LATENCY], 0.0), self.config.max_gps_latency_s)
         return nis
 
     # --- dead reckoning ------------------------------------------------------------------
@@ -363,9 +369,16 @@ class RoadFilter:
         s, cfg = self.state, self.config
         sigma = self._sigma_m(fix)
         s.x[X_M], s.x[Y_M] = east, north
-        s.P[[X_M, Y_M], :] = 0.0
-        s.P[:, [X_M, Y_M]] = 0.0
+        reset = [X_M, Y_M, *GPS_BIAS]
+        s.P[reset, :] = 0.0
+        s.P[:, reset] = 0.0
+        s.x[list(GPS_BIAS)] = 0.0
+        white, s.gps_bias_sigma_m = self._split_sigma(sigma)
         s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma ** 2
+        s.P[X_M, GPS_BIAS_E] = s.P[GPS_BIAS_E, X_M] = -s.gps_bias_sigma_m ** 2
+        s.P[Y_M, GPS_BIAS_N] = s.P[GPS_BIAS_N, Y_M] = -s.gps_bias_sigma_m ** 2
+        s.P[GPS_BIAS_E, GPS_BIAS_E] = s.P[GPS_BIAS_N, GPS_BIAS_N] = s.gps_bias_sigma_m ** 2
+        s.gps_bias_t = fix.t
         if heading is not None:
             s.x[HEADING] = heading[0] % (2.0 * math.pi)
             _reset_variance(s.P, HEADING, heading[1])
@@ -376,11 +389,12 @@ class RoadFilter:
             s.calibrating = True
             bias, bias_var = self._initial_gyro_bias()
             s.x[HEADING_RATE], s.x[GYRO_BIAS], s.x[ODO_SCALE] = 0.0, bias, 1.0
-            s.x[GYRO_SCALE] = 0.0
+            s.x[GYRO_SCALE], s.x[GPS_LATENCY] = 0.0, cfg.initial_gps_latency_s
             for i, var in ((HEADING_RATE, 0.1 ** 2), (GYRO_BIAS, bias_var),
                            (ODO_SCALE, cfg.initial_odo_scale_sigma ** 2),
                            (ACCEL_BIAS, 0.1 ** 2),
-                           (GYRO_SCALE, cfg.initial_gyro_scale_sigma ** 2)):
+                           (GYRO_SCALE, cfg.initial_gyro_scale_sigma ** 2),
+                           (GPS_LATENCY, cfg.initial_gps_latency_sigma_s ** 2)):
                 _reset_variance(s.P, i, var)
         s.gated_fixes, s.first_gated_t, s.jump_since_t = 0, None, None
 
@@ -418,18 +432,21 @@ class RoadFilter:
           when fixes keep being refused the position variance widens by a fix's variance a
           second, so that fixes which agree with each other are taken within seconds; after
           ``reacquire_after_gated_s`` the filter starts over from GPS.
-        - ``gps_bias_share`` of the sigma is an error no averaging removes: it is added to the
-          reported position covariance, not to the filter's (that would make it follow GPS
-          noise)."""
+        - ``gps_bias_share`` of the sigma is an error that changes slowly (time constant
+          ``gps_bias_tau_s``): two bias states carry it, so that averaging fixes does not
+          make the position look surer than it is; the rest is new at each fix."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        sigma = self._gps_sigma_learnt(fix) * math.sqrt(max(1.0, 1.0 / max(dt_s, 1e-3)))
-        z, h, H, R = GpsPosition(east, north, sigma, cfg.gps_latency_s).model(s.x)
+        white, s.gps_bias_sigma_m = self._split_sigma(self._gps_sigma_learnt(fix))
+        self._propagate_gps_bias(fix.t)
+        sigma = white * math.sqrt(max(1.0, 1.0 / max(dt_s, 1e-3)))
+        z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
         y = z - h
         nis = float(y @ np.linalg.solve(H @ s.P @ H.T + R, y))
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
             if self._jumps_back(fix.t, y, sigma):
-                s.x[X_M], s.x[Y_M] = east, north
+                s.x[X_M] += y[0]
+                s.x[Y_M] += y[1]
                 s.P[X_M, X_M] += sigma ** 2
                 s.P[Y_M, Y_M] += sigma ** 2
                 self._tracking(fix.t)
@@ -449,7 +466,6 @@ class RoadFilter:
         if s.gated_fixes and s.gated_offset_m is not None and not self._recent_jump(fix.t):
             s.followed_jump = (fix.t, *s.gated_offset_m)  # the filter followed a jump
         self._tracking(fix.t)
-        s.gps_bias_var_m2 = (cfg.gps_bias_share * self._gps_sigma_learnt(fix)) ** 2
         s.gated_fixes, s.first_gated_t = 0, None
         course = self._gps_course(fix)
         if course is not None and fix.speed_mps is not None:
@@ -458,6 +474,18 @@ class RoadFilter:
             self._update(ZeroMotion(sigma_mps=0.3, sigma_rps=0.05))
         s.gps = GpsUsage(True, weight, "accepted" if weight == 1.0 else "down-weighted",
                          nis=nis)
+
+    def _split_sigma(self, sigma_m: float) -> tuple[float, float]:
+        """A fix's sigma as (the part new at each fix, the slowly changing part)."""
+        share = self.config.gps_bias_share
+        return sigma_m * math.sqrt(1.0 - share ** 2), sigma_m * share
+
+    def _propagate_gps_bias(self, t: float) -> None:
+        s, cfg = self.state, self.config
+        if s.gps_bias_t is not None:
+            motion.propagate_gps_bias(s.x, s.P, t - s.gps_bias_t, cfg.gps_bias_tau_s,
+                                      s.gps_bias_sigma_m)
+        s.gps_bias_t = t
 
     def _tracking(self, t: float) -> None:
         """A fix got through the gate: the track goes on (or starts again after a gap)."""
@@ -540,8 +568,7 @@ class RoadFilter:
         (after a long stop or outage the filter's heading can be far off and overconfident)."""
         s, cfg = self.state, self.config
         gate = None if self.profile.gps_alone else 2
-        nis = self._update(GpsVelocity(speed_mps, course_rad, cfg.gps_velocity_sigma_mps,
-                                       cfg.gps_latency_s),
+        nis = self._update(GpsVelocity(speed_mps, course_rad, cfg.gps_velocity_sigma_mps),
                            gate_dof=gate)
         if nis is not None:
             s.gated_courses = 0
@@ -595,19 +622,37 @@ class RoadFilter:
         """The thesis's weighted sum: a fixed gain of ``weight`` on each measured state."""
         s = self.state
         z, h, H, R = m
-        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, weight * H.T)
+        K = weight * H.T
+        K[list(GPS_BIAS), :] = 0.0  # the thesis's sums know no GPS bias
+        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, K)
 
     # --- output --------------------------------------------------------------------------
+    def _bias_share_m2(self) -> float:
+        """Of the position variance, the part the GPS bias makes (the rest is the track's
+        own uncertainty, :attr:`FusedEstimate.tracking_sigma_m`)."""
+        P = self.state.P
+        position = (P[X_M, X_M] + P[Y_M, Y_M]) / 2.0
+        return max(position - _tracking_variance_m2(P), 0.0)
+
     def _estimate(self) -> FusedEstimate:
         s = self.state
         return FusedEstimate(
             t=float(s.t or 0.0), x_m=float(s.x[X_M]), y_m=float(s.x[Y_M]),
             heading_rad=float(s.x[HEADING] % (2.0 * math.pi)), speed_mps=float(s.x[SPEED]),
             yaw_rate_rps=float(s.x[HEADING_RATE]),
-            position_cov_m2=s.P[:2, :2] + s.gps_bias_var_m2 * np.eye(2),
+            position_cov_m2=s.P[:2, :2].copy(),
             heading_sigma_rad=float(math.sqrt(max(s.P[HEADING, HEADING], 0.0))),
-            initialized=s.initialized, gps=s.gps, gps_bias_var_m2=s.gps_bias_var_m2,
+            initialized=s.initialized, gps=s.gps, gps_bias_var_m2=self._bias_share_m2(),
         )
+
+
+def _tracking_variance_m2(P: Array) -> float:
+    """Mean variance of position minus GPS bias: how far the track may be from where the
+    fixes put it (small while fixes come, growing in an outage)."""
+    total = 0.0
+    for p, b in ((X_M, GPS_BIAS_E), (Y_M, GPS_BIAS_N)):
+        total += P[p, p] + P[b, b] - 2.0 * P[p, b]
+    return total / 2.0
 
 
 def _reset_variance(P: Array, i: int, variance: float) -> None:

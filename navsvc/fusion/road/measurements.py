@@ -19,6 +19,9 @@ from navsvc.fusion._jit import Array, jit
 from navsvc.fusion.kalman import Linearised
 from navsvc.fusion.road.motion import (
     ACCEL_BIAS,
+    GPS_BIAS_E,
+    GPS_BIAS_N,
+    GPS_LATENCY,
     GYRO_BIAS,
     GYRO_SCALE,
     HEADING,
@@ -43,7 +46,8 @@ def _row(**entries: float) -> Array:
 
 _INDEX = {"x": X_M, "y": Y_M, "heading": HEADING, "speed": SPEED, "rate": HEADING_RATE,
           "gyro_bias": GYRO_BIAS, "odo_scale": ODO_SCALE, "accel_bias": ACCEL_BIAS,
-          "gyro_scale": GYRO_SCALE}
+          "gyro_scale": GYRO_SCALE, "gps_bias_e": GPS_BIAS_E, "gps_bias_n": GPS_BIAS_N,
+          "gps_latency": GPS_LATENCY}
 
 
 @jit
@@ -166,45 +170,48 @@ class SteeringRate:
 
 @dataclass(frozen=True)
 class GpsPosition:
-    """A GPS fix in the map frame (east, north), of where the car was ``latency_s`` before
-    the fix's time stamp (receivers send a fix a tenth of a second or more after its
-    measurement): the position then, ``latency_s`` of driving back along the heading."""
+    """A GPS fix in the map frame (east, north), of where the car was when the fix was
+    measured, the latency state before its time stamp (a client stamps a fix when it gets
+    it, a tenth of a second or more after the measurement): the position then, that long of
+    driving back along the heading, plus the slowly changing GPS error (the bias states);
+    ``sigma_m`` is the rest, the part that is new at each fix."""
 
     east_m: float
     north_m: float
     sigma_m: float
-    latency_s: float = 0.0
 
     def model(self, x: Array) -> Linearised:
-        variance, lag = self.sigma_m ** 2, self.latency_s
+        variance, lag = self.sigma_m ** 2, x[GPS_LATENCY]
         s, c, v = math.sin(x[HEADING]), math.cos(x[HEADING]), x[SPEED]
         H = np.zeros((2, N_STATES))
-        H[0, X_M] = H[1, Y_M] = 1.0
-        H[0, SPEED], H[0, HEADING] = -lag * s, -lag * v * c
-        H[1, SPEED], H[1, HEADING] = -lag * c, lag * v * s
+        H[0, X_M] = H[1, Y_M] = H[0, GPS_BIAS_E] = H[1, GPS_BIAS_N] = 1.0
+        H[0, SPEED], H[0, HEADING], H[0, GPS_LATENCY] = -lag * s, -lag * v * c, -v * s
+        H[1, SPEED], H[1, HEADING], H[1, GPS_LATENCY] = -lag * c, lag * v * s, -v * c
         return (np.array([self.east_m, self.north_m]),
-                np.array([x[X_M] - lag * v * s, x[Y_M] - lag * v * c]), H,
+                np.array([x[X_M] - lag * v * s + x[GPS_BIAS_E],
+                          x[Y_M] - lag * v * c + x[GPS_BIAS_N]]), H,
                 np.array([[variance, 0.0], [0.0, variance]]))
 
 
 @dataclass(frozen=True)
 class GpsVelocity:
-    """GPS ground velocity (east, north): ``speed x (sin, cos)`` of the heading
-    ``latency_s`` before the time stamp (``heading - heading_rate x latency_s``)."""
+    """GPS ground velocity (east, north): ``speed x (sin, cos)`` of the heading when the
+    fix was measured (``heading - heading_rate x latency``)."""
 
     speed_mps: float
     course_rad: float
     sigma_mps: float
-    latency_s: float = 0.0
 
     def model(self, x: Array) -> Linearised:
-        then = x[HEADING] - x[HEADING_RATE] * self.latency_s
+        lag, rate = x[GPS_LATENCY], x[HEADING_RATE]
+        then = x[HEADING] - rate * lag
         s, c = math.sin(then), math.cos(then)
         H = np.zeros((2, N_STATES))
         H[0, SPEED], H[0, HEADING] = s, x[SPEED] * c
         H[1, SPEED], H[1, HEADING] = c, -x[SPEED] * s
-        H[0, HEADING_RATE] = -self.latency_s * H[0, HEADING]
-        H[1, HEADING_RATE] = -self.latency_s * H[1, HEADING]
+        for row in (0, 1):
+            H[row, HEADING_RATE] = -lag * H[row, HEADING]
+            H[row, GPS_LATENCY] = -rate * H[row, HEADING]
         z = np.array([self.speed_mps * math.sin(self.course_rad),
                       self.speed_mps * math.cos(self.course_rad)])
         return (z, np.array([x[SPEED] * s, x[SPEED] * c]), H,

@@ -16,6 +16,9 @@ State ``x`` (8), units in brackets::
     6 ODO_SCALE      odometer scale factor (measured = scale x true) [-]
     7 ACCEL_BIAS     forward accelerometer bias [m/s²]
     8 GYRO_SCALE     gyro scale factor error (measured = (1 + this) x true rate) [-]
+    9 GPS_BIAS_E     the slowly changing part of the GPS error, east [m] (first-order
+   10 GPS_BIAS_N     ... north; Gauss-Markov: the filter propagates it at each fix)
+   11 GPS_LATENCY    how long before its time stamp a fix was measured [s]
 
 The measurement models over this state are in :mod:`navsvc.fusion.road.measurements`.
 """
@@ -31,8 +34,10 @@ import numpy as np
 from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
 
-X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE = range(9)
-N_STATES = 9
+(X_M, Y_M, HEADING, SPEED, HEADING_RATE, GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE,
+ GPS_BIAS_E, GPS_BIAS_N, GPS_LATENCY) = range(12)
+N_STATES = 12
+GPS_BIAS = (GPS_BIAS_E, GPS_BIAS_N)
 
 
 @dataclass(frozen=True)
@@ -55,7 +60,7 @@ class ProcessNoise:
                          self.gyro_bias_drift_rps_per_sqrt_s ** 2,
                          self.odo_scale_drift_per_sqrt_s ** 2,
                          self.accel_bias_drift_mps2_per_sqrt_s ** 2,
-                         self.gyro_scale_drift_per_sqrt_s ** 2])
+                         self.gyro_scale_drift_per_sqrt_s ** 2, 0.0, 0.0, 0.0])
 
     @cached_property
     def densities_with_accel(self) -> Array:
@@ -63,6 +68,21 @@ class ProcessNoise:
         q = self.densities.copy()
         q[SPEED] = self.accel_integration_mps2 ** 2
         return q
+
+
+def propagate_gps_bias(x: Array, P: Array, dt_s: float, tau_s: float,
+                       sigma_m: float) -> None:
+    """The GPS bias states ``dt_s`` on, in place: first-order Gauss-Markov with time
+    constant ``tau_s`` and steady sigma ``sigma_m``. The inertial-rate predictions leave them
+    alone (their transition is a scalar times the identity, which commutes with the rest),
+    so this one step at a fix is exact."""
+    decay = math.exp(-max(dt_s, 0.0) / tau_s)
+    idx = list(GPS_BIAS)
+    x[idx] *= decay
+    P[idx, :] *= decay
+    P[:, idx] *= decay
+    for i in GPS_BIAS:
+        P[i, i] += sigma_m ** 2 * (1.0 - decay ** 2)
 
 
 def propagate(x: Array, dt_s: float, accel_fwd_mps2: float | None,
