@@ -61,6 +61,8 @@ class FusionConfig:
     initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas apart
     initial_heading_max_baseline_s: float = 10.0  # ... and at most this long apart
     initial_heading_max_turn_rad: float = math.radians(10.0)  # ... with less turn between
+    velocity_baseline_s: float = 5.0  # rules, fuzzy: course and speed from fixes at most
+    # this far back when the receiver sends none (with the start-up heading's conditions)
     initial_speed_sigma_mps: float = 5.0  # speed at start-up when nothing measured it
     odo_scale_limits: tuple[float, float] = (0.7, 1.3)  # a wheel odometer is never further off
     reorder_window_s: float = 0.25

@@ -6,9 +6,16 @@ import math
 
 import numpy as np
 
-from navsvc.fusion import FusionConfig
+from navsvc.fusion import FusionConfig, GpsMode
 from navsvc.fusion.road.filter import RoadFilter
-from navsvc.fusion.road.motion import GYRO_BIAS
+from navsvc.fusion.road.motion import (
+    GPS_BIAS_E,
+    GPS_BIAS_N,
+    GPS_LATENCY,
+    GYRO_BIAS,
+    HEADING,
+    SPEED,
+)
 from navsvc.types import GpsFix, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
 
@@ -79,3 +86,18 @@ def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
     back = [f for f in fixes if f[0] >= 80.0]
     assert back[0][2] == "re-acquired: the fixes jumped back"
     assert all(err < 5.0 for _, err, _ in back), back
+
+
+def test_weighted_modes_blend_only_what_gps_measures() -> None:
+    """The thesis's weighted sums move position (and heading and speed, from a course the
+    fixes' track gives when the receiver sends none), never the latency or bias states."""
+    for mode in (GpsMode.RULES, GpsMode.FUZZY):
+        road = RoadFilter(FusionConfig(gps_mode=mode), FRAME)
+        for p in _drive(60.0, []):
+            road.apply(p)
+        x = road.state.x
+        assert np.isfinite(x).all() and np.isfinite(road.state.P).all()
+        assert x[GPS_LATENCY] == FusionConfig().initial_gps_latency_s
+        assert x[GPS_BIAS_E] == x[GPS_BIAS_N] == 0.0
+        assert abs(x[SPEED] - SPEED_MPS) < 1.0
+        assert abs(math.remainder(x[HEADING], 2.0 * math.pi)) < math.radians(5.0)

@@ -111,6 +111,8 @@ class RoadState:
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     last_gps_t: float | None = None
+    recent_fixes: tuple[tuple[float, float, float, float], ...] = ()  # rules and fuzzy:
+    # (t, east, north, heading of the estimate) of the last few seconds' fixes
     last_output_t: float | None = None
     gps: GpsUsage | None = None
 
@@ -175,8 +177,12 @@ class RoadFilter:
         gyro = packet.yaw_rate_rps if isinstance(packet, ImuSample) and self._gyro else None
         self._propagate_to(packet.t, gyro)
         if isinstance(packet, GpsFix):
+            before = self.snapshot()
             self._fuse_gps(packet)
-            s.last_output_t = packet.t
+            if not (np.isfinite(self.state.x).all() and np.isfinite(self.state.P).all()):
+                self.restore(before)  # never a state a later packet cannot recover from
+                self.state.gps = GpsUsage(False, 0.0, "refused: the update was not finite")
+            self.state.last_output_t = packet.t
             return [self._estimate()]
         if isinstance(packet, GpsVelocityPacket):
             self._fuse_gps_velocity(packet)
@@ -583,6 +589,7 @@ class RoadFilter:
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
         s, cfg = self.state, self.config
         east, north = self._local(fix)
+        fix = self._with_velocity(fix, east, north)
         distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
         if cfg.gps_mode == GpsMode.RULES:
             decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
@@ -596,6 +603,28 @@ class RoadFilter:
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
         self._apply_decision(fix, decision, east, north)
 
+    def _with_velocity(self, fix: GpsFix, east: float, north: float) -> GpsFix:
+        """The fix with a course and speed from the track of recent fixes when the receiver
+        sends none (the rules and fuzzy modes correct heading and speed only from a GPS
+        course; without one they ran to hundreds of metres): from the oldest fix of the last
+        ``velocity_baseline_s`` that lies far enough back against the fixes' error, with the
+        filter's heading turned by less than ``initial_heading_max_turn_rad`` since."""
+        s, cfg = self.state, self.config
+        recent = [f for f in s.recent_fixes if fix.t - f[0] <= cfg.velocity_baseline_s]
+        s.recent_fixes = (*recent, (fix.t, east, north, float(s.x[HEADING])))
+        if fix.heading_rad is not None and fix.speed_mps is not None:
+            return fix
+        spread = math.sqrt(2.0) * self._sigma_m(fix)
+        for t0, e0, n0, heading0 in recent:
+            moved = math.hypot(east - e0, north - n0)
+            turned = abs(math.remainder(float(s.x[HEADING]) - heading0, 2.0 * math.pi))
+            if fix.t > t0 and turned < cfg.initial_heading_max_turn_rad and \
+                    moved >= max(cfg.initial_heading_min_move_m,
+                                 cfg.initial_heading_min_move_sigmas * spread):
+                return replace(fix, speed_mps=moved / (fix.t - t0),
+                               heading_rad=bearing_rad(e0, n0, east, north))
+        return fix
+
     def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float) -> None:
         s = self.state
         if d.action == GpsAction.REJECT:
@@ -608,22 +637,26 @@ class RoadFilter:
                                  self._measured_speed(fix))
             s.gps = GpsUsage(True, 1.0, d.reason)
             return
-        self._blend(GpsPosition(east, north, self._sigma_m(fix)).model(s.x), d.position_weight)
+        self._blend(GpsPosition(east, north, self._sigma_m(fix)).model(s.x), d.position_weight,
+                    (X_M, Y_M))
         course = self._gps_course(fix)
         if course is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
             # weighted sum of heading (wrapped) and speed with the GPS course and speed
             self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.radians(5.0),
                                        self.config.gps_velocity_sigma_mps).model(s.x),
-                        d.heading_weight)
+                        d.heading_weight, (HEADING, SPEED))
             s.x[HEADING] %= 2.0 * math.pi
         s.gps = GpsUsage(True, d.position_weight, d.reason)
 
-    def _blend(self, m: Linearised, weight: float) -> None:
-        """The thesis's weighted sum: a fixed gain of ``weight`` on each measured state."""
+    def _blend(self, m: Linearised, weight: float, states: tuple[int, ...]) -> None:
+        """The thesis's weighted sum: a fixed gain of ``weight`` from each row of the
+        measurement to the state it measures (``states``, in row order), none to any other
+        (a GPS position's Jacobian reaches speed, heading, latency and bias too)."""
         s = self.state
         z, h, H, R = m
-        K = weight * H.T
-        K[list(GPS_BIAS), :] = 0.0  # the thesis's sums know no GPS bias
+        K = np.zeros((N_STATES, len(z)))
+        for row, state in enumerate(states):
+            K[state, row] = weight
         s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, K)
 
     # --- output --------------------------------------------------------------------------
