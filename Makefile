@@ -22,7 +22,7 @@ $(MAP_DB): $(MAP_SOURCE) $(BIN)/.installed
 map: $(MAP_DB)
 
 run: $(MAP_DB)
-	@echo "navsvc: serving $(MAP_DB) on http://$(HOST):$(PORT)/v1 (API docs: /docs); Ctrl-C stops"
+	@echo "navsvc: serving $(MAP_DB): open http://$(HOST):$(PORT)/ for the live map (API: /v1, docs: /docs); Ctrl-C stops"
 	$(BIN)/navsvc serve --map $(MAP_DB) --host $(HOST) --port $(PORT)
 
 test: $(BIN)/.installed

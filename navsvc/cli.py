@@ -16,29 +16,27 @@ import sys
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tqdm import tqdm
+from navsvc import __version__
+from navsvc.errors import ConfigError, NavsvcError
 
-from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
-from navsvc.fusion import GpsMode, SensorConfig
-from navsvc.matching.hmm import HmmConfig
-from navsvc.session import VehicleSession, config_from_options
-from navsvc.sim.evaluate import Evaluation, evaluate
-from navsvc.sim.gnss_replay import GnssErrorRecording, parse_urbannav
-from navsvc.sim.harsh import harsh_urban_spec
-from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
-from navsvc.wire.jsonl import iter_lines, read_records, write_records
-from navsvc.wire.positions import position_json
-from navsvc.wire.route import match_trace
-from navsvc.wire.traces import read_trace
-from roadgraph import RoadGraph, RoadGraphError
+if TYPE_CHECKING:
+    from navsvc.sim.evaluate import Evaluation
+    from navsvc.sim.gnss_replay import GnssErrorRecording
 
+# Imports are lazy: each command imports what it uses, so that `--help`, `--version` and the
+# light commands start without NumPy, numba, networkx or FastAPI (they took ~1-4 s).
 log = logging.getLogger("navsvc")
 
-SENSOR_CHOICES = [c.value for c in SensorConfig]
+# The values of navsvc.fusion's SensorConfig, GpsMode and navsvc.sim's SENSOR_KINDS, written
+# out so that building the parser imports neither (tests/cli/test_startup.py checks they agree)
+SENSOR_CHOICES = ["gyro_odometer", "steering_odometer", "gyro_accel", "gyro_two_accels",
+                  "gps_only", "strapdown"]
+FUSION_CHOICES = ["ekf", "rules", "fuzzy"]
+SIMULATE_SENSOR_CHOICES = ["all", *SENSOR_CHOICES]
+HMM_SIGMA_M = 10.0  # HmmConfig.sigma_m
 URBANNAV_DIR = Path(__file__).resolve().parent.parent / "tests" / "data" / "urbannav"
-FUSION_CHOICES = [m.value for m in GpsMode]
 
 
 def _outage_arg(text: str) -> tuple[float, float]:
@@ -70,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="navsvc", description="Map-matching navigation: sensor fusion onto a road graph.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log what happens")
+    parser.add_argument("--version", action="version", version=f"navsvc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     sim = sub.add_parser("simulate", help="simulate a drive with truth and sensor packets",
@@ -87,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar="START:LENGTH",
                      help="no GPS from START for LENGTH seconds (repeatable); tunnels on the "
                      "map also block GPS")
-    sim.add_argument("--sensors", choices=[*SENSOR_KINDS], default="all",
+    sim.add_argument("--sensors", choices=SIMULATE_SENSOR_CHOICES, default="all",
                      help="which sensors the vehicle has: a sensor configuration, or all of "
                      "them (default all)")
     sim.add_argument("--profile", choices=["default", "harsh-urban"], default="default",
@@ -142,8 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
     mt.add_argument("--map", required=True, type=Path, metavar="DB", help="road-graph database")
     mt.add_argument("-o", "--output", type=Path, metavar="ROUTE.json",
                     help="write the route JSON here (default: stdout)")
-    mt.add_argument("--sigma", type=_positive_arg, default=HmmConfig.sigma_m, metavar="M",
-                    help=f"GPS error in metres (default {HmmConfig.sigma_m:g})")
+    mt.add_argument("--sigma", type=_positive_arg, default=HMM_SIGMA_M, metavar="M",
+                    help=f"GPS error in metres (default {HMM_SIGMA_M:g})")
     mt.add_argument("--json", action="store_true",
                     help="print the whole route JSON even with -o (default: a summary)")
 
@@ -161,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--triplog", type=Path, metavar="FILE",
                     help="trip log SQLite file (default: $NAVSVC_TRIPLOG, else DB's stem + "
                     ".trips.db beside DB)")
+    sv.add_argument("--warm-up-only", action="store_true",
+                    help="compile the filter kernels into numba's cache and exit (the Docker "
+                    "build does this, so that a container starts in seconds)")
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
                         description="Create a session on a running `navsvc serve`, stream the "
@@ -202,12 +204,27 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(_COMMANDS[args.command](args))
-    except (NavsvcError, RoadGraphError) as exc:
+    except Exception as exc:
+        if not isinstance(exc, _expected_errors()):
+            raise
         print(f"navsvc: error: {exc}", file=sys.stderr)
         return 1
 
 
+def _expected_errors() -> tuple[type[Exception], ...]:
+    """NavsvcError, and RoadGraphError when roadgraph was imported (else none was raised)."""
+    roadgraph_errors = sys.modules.get("roadgraph.errors")
+    if roadgraph_errors is None:
+        return (NavsvcError,)
+    return NavsvcError, roadgraph_errors.RoadGraphError
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from navsvc.sim.harsh import harsh_urban_spec
+    from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+    from navsvc.wire.jsonl import write_records
+    from roadgraph import RoadGraph
+
     graph = RoadGraph.open(args.map)
     spec = DriveSpec(duration_s=args.duration, seed=args.seed, outages=tuple(args.outage),
                      sensors=SENSOR_KINDS[args.sensors], full_imu=args.sensors == "strapdown",
@@ -226,6 +243,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _urbannav() -> GnssErrorRecording:
+    from navsvc.sim.gnss_replay import parse_urbannav
+
     spp, truth = URBANNAV_DIR / "spp_fixes.csv", URBANNAV_DIR / "groundTruth_TST.csv"
     try:
         return parse_urbannav(spp.read_text(), truth.read_text())
@@ -235,6 +254,14 @@ def _urbannav() -> GnssErrorRecording:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from navsvc.errors import Rejection, RejectReason
+    from navsvc.session import VehicleSession, config_from_options
+    from navsvc.wire.jsonl import iter_lines, write_records
+    from navsvc.wire.positions import position_json
+    from roadgraph import RoadGraph
+
     graph = RoadGraph.open(args.map)
     try:
         config = config_from_options({"sensors": args.sensors, "fusion": args.fusion,
@@ -275,6 +302,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from navsvc.sim.evaluate import evaluate
+    from navsvc.wire.jsonl import read_records
+    from roadgraph import RoadGraph
+
     drive = read_records(args.truth)
     estimates = read_records(args.estimate)
     try:
@@ -316,6 +347,11 @@ def format_evaluation(e: Evaluation) -> str:
 
 
 def _cmd_match(args: argparse.Namespace) -> int:
+    from navsvc.matching.hmm import HmmConfig
+    from navsvc.wire.route import match_trace
+    from navsvc.wire.traces import read_trace
+    from roadgraph import RoadGraph
+
     graph = RoadGraph.open(args.map)
     fixes = read_trace(args.trace)
     route = match_trace(graph, fixes, HmmConfig(sigma_m=args.sigma, beta_m=2.0 * args.sigma))
@@ -335,7 +371,11 @@ def _cmd_match(args: argparse.Namespace) -> int:
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from navsvc.sim.simulate import SENSOR_KINDS
     from navsvc.wire.client import create_session, stream_packets
+    from navsvc.wire.jsonl import iter_lines, write_records
 
     left_behind = {"truth", *SENSOR_KINDS["all"]} - set(SENSOR_KINDS[args.sensors])
     lines = list(iter_lines(args.input))
@@ -371,6 +411,15 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from navsvc.api import Settings, create_app
 
     logging.getLogger("navsvc").setLevel(logging.INFO)  # a service says what it does
+    if args.warm_up_only:
+        from navsvc.api.warmup import warm_up
+        from roadgraph import RoadGraph
+
+        map_path = args.map or os.environ.get("NAVSVC_MAP")
+        if not map_path:
+            raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
+        warm_up(RoadGraph.open(map_path))
+        return 0
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog)
     app = create_app(settings)
     # no per-message compression: replies are small, and deflate cost more CPU than it saved

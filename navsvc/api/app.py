@@ -30,6 +30,7 @@ from navsvc.api.deps import AppState
 from navsvc.api.logs import redact_api_keys
 from navsvc.api.routes import maps, match, ops, sessions, stream
 from navsvc.api.settings import Settings
+from navsvc.api.warmup import warm_up
 from navsvc.errors import (
     BatchAlreadyApplied,
     ConfigError,
@@ -39,7 +40,7 @@ from navsvc.errors import (
     TraceError,
 )
 from navsvc.metrics import Metrics
-from navsvc.session import SessionConfig, SessionStore, VehicleSession
+from navsvc.session import SessionStore
 from navsvc.triplog import TripLog
 from roadgraph import RoadGraph, RoadGraphError
 
@@ -117,18 +118,6 @@ def _openapi(app: FastAPI, keys_required: bool) -> dict[str, Any]:
             schema.get("components", {}).pop("securitySchemes", None)
         app.openapi_schema = schema
     return app.openapi_schema
-
-
-def warm_up(graph: RoadGraph) -> None:
-    """Run a few packets of every kind through a throwaway session, so that the compiled
-    kernels (numba) are loaded before the first client's packets rather than stalling them."""
-    node = graph.nodes[0]
-    session = VehicleSession(SessionConfig(), graph)
-    fixes = [{"t": float(i), "kind": "gps", "lat": node.lat_deg + 1e-4 * i,
-              "lon": node.lon_deg, "speed_mps": 11.0} for i in range(3)]
-    inertial = [{"t": 2.0 + 0.01 * i, "kind": "imu", "yaw_rate_dps": 0.0} for i in range(1, 5)]
-    odometer = [{"t": 2.0 + 0.02 * i, "kind": "odometer", "speed_mps": 11.0} for i in range(1, 3)]
-    session.add_records(sorted(fixes + inertial + odometer, key=lambda r: r["t"]))
 
 
 async def _restore_sessions(store: SessionStore) -> None:

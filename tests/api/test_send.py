@@ -81,3 +81,23 @@ def test_send_survives_a_server_crash_without_losing_or_doubling_a_packet(
         assert info["position"] == position_json(offline.last_position, sample_graph.frame)
     finally:
         second.stop()
+
+
+def test_send_needs_no_httpx(server: Server, sample_db: Path, tmp_path: Path) -> None:
+    """`navsvc send` runs on the runtime dependencies alone (it crashed with
+    ModuleNotFoundError: httpx in an install without the test extras)."""
+    import subprocess
+    import sys
+
+    drive = tmp_path / "drive.jsonl"
+    assert main(["simulate", "--map", str(sample_db), "-o", str(drive), "--seed", "3",
+                 "--duration", "10", "--sensors", "gyro_odometer"]) == 0
+    code = ("import sys\nsys.modules['httpx'] = None  # import httpx now raises\n"
+            "from navsvc.cli import main\n"
+            f"sys.exit(main(['send', {str(drive)!r}, '--url', {server.url!r}, '--json', "
+            "'--quiet']))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["rejected"] == 0 and summary["accepted"] == summary["packets"] > 1000

@@ -167,3 +167,13 @@ def test_strapdown_session_takes_6_axis_imu(client: httpx.Client) -> None:
     r = client.post("/sessions", json={"vehicle_id": "x", "sensors": "strapdown",
                                        "map_feedback": True})
     assert r.status_code == 422 and "map feedback" in r.json()["error"]["message"]
+
+
+@pytest.mark.parametrize("path", ["/v1", "/v1/"])
+def test_the_api_root_says_where_to_go(server: Server, path: str) -> None:
+    """`make run` prints the server's address; /v1 and /v1/ answered 404."""
+    r = httpx.get(server.url + path, timeout=10.0)
+    assert r.status_code == 200
+    body = r.json()
+    assert body["service"] == "navsvc" and body["map"] == "monaco"
+    assert body["links"]["map_view"] == "/" and body["links"]["docs"] == "/docs"
