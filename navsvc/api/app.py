@@ -22,13 +22,14 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from navsvc import __version__
 from navsvc.api.deps import AppState
 from navsvc.api.logs import redact_api_keys
-from navsvc.api.routes import maps, match, ops, sessions, stream
+from navsvc.api.routes import maps, match, ops, sessions, stream, view
 from navsvc.api.settings import Settings
 from navsvc.api.warmup import warm_up
 from navsvc.errors import (
@@ -42,6 +43,8 @@ from navsvc.errors import (
 from navsvc.metrics import Metrics
 from navsvc.session import SessionStore
 from navsvc.triplog import TripLog
+from navsvc.web import STATIC_DIR
+from navsvc.web.feed import ViewerHub
 from roadgraph import RoadGraph, RoadGraphError
 
 log = logging.getLogger(__name__)
@@ -59,7 +62,10 @@ def create_app(settings: Settings) -> FastAPI:
     triplog = TripLog(settings.triplog, sync=settings.triplog_sync)
     store = SessionStore(graph, triplog, idle_timeout_s=settings.session_idle_s,
                          max_sessions_per_owner=settings.max_sessions_per_key)
-    state = AppState(settings=settings, graph=graph, store=store, metrics=Metrics())
+    metrics = Metrics()
+    state = AppState(settings=settings, graph=graph, store=store, metrics=metrics,
+                     viewers=ViewerHub(settings.view_history_batches,
+                                       settings.ws_queue_messages, metrics.viewer_dropped.inc))
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -87,8 +93,10 @@ def create_app(settings: Settings) -> FastAPI:
                   description="Map-matching navigation: vehicles stream sensor packets, the "
                               "service fuses them and matches them onto the road graph.")
     app.state.navsvc = state
-    for module in (sessions, stream, match, maps, ops):
+    for module in (sessions, stream, view, match, maps, ops):
         app.include_router(module.router, prefix="/v1")
+    app.include_router(view.page)
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     _add_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.openapi = lambda: _openapi(app, keys_required=bool(settings.api_keys))  # type: ignore[method-assign]
@@ -137,6 +145,8 @@ async def _expire_idle(state: AppState) -> None:
     while True:
         await asyncio.sleep(period)
         expired = state.store.expire_idle()
+        for session_id in expired:
+            state.viewers.end(session_id)
         state.metrics.sessions_expired.inc(len(expired))
         state.metrics.sessions.set(len(state.store))
 
