@@ -181,6 +181,29 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("--api-key", default=os.environ.get("NAVSVC_API_KEY"),
                     help="API key (default: $NAVSVC_API_KEY)")
     _add_session_options(sd)
+
+    vw = sub.add_parser("view", help="show a drive or a run on the map page",
+                        description="Open the map page on a finished drive (sensor packets: "
+                        "replayed through fusion and matching as `navsvc run` does, raw fixes "
+                        "and matched positions drawn) or a run (matched positions from `navsvc "
+                        "run` or `navsvc send -o`), served by a local navsvc server until "
+                        "Ctrl-C. A slider and Play go through it in time.")
+    vw.add_argument("input", type=Path, metavar="DRIVE.jsonl|OUT.jsonl",
+                    help="a drive or a run (JSON Lines)")
+    vw.add_argument("--map", type=Path, metavar="DB",
+                    help="road-graph database (default: $NAVSVC_MAP)")
+    vw.add_argument("--truth", action="store_true",
+                    help="draw the truth track too (a drive's kind truth records)")
+    vw.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
+                    help="for a drive: the sensor configuration to replay it with (default "
+                    "gyro_odometer)")
+    vw.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
+                    help="for a drive: GPS fusion mode (default ekf)")
+    vw.add_argument("--host", default="127.0.0.1", help="address to listen on (default "
+                    "127.0.0.1)")
+    vw.add_argument("--port", type=int, default=8001, help="TCP port (default 8001)")
+    vw.add_argument("--no-browser", action="store_true",
+                    help="do not open a web browser, only print the address")
     return parser
 
 
@@ -429,5 +452,39 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    import tempfile
+    import threading
+    import webbrowser
+
+    import uvicorn
+
+    from navsvc.api import Settings, create_app
+    from navsvc.web.replay import load_replay
+    from roadgraph import RoadGraph
+
+    map_path = args.map or os.environ.get("NAVSVC_MAP")
+    if not map_path:
+        raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
+    graph = RoadGraph.open(Path(map_path))
+    replay = load_replay(args.input, graph, {"sensors": args.sensors, "fusion": args.fusion},
+                         with_truth=args.truth)
+    for problem in replay["problems"][:5]:
+        print(f"  {problem}", file=sys.stderr)
+    if args.truth and not replay["truth"]:
+        print(f"navsvc: {args.input} has no truth records", file=sys.stderr)
+    url = f"http://{args.host}:{args.port}/"
+    print(f"{args.input}: {len(replay['fixes'])} fixes, {len(replay['positions'])} positions; "
+          f"map view on {url} (Ctrl-C stops)", flush=True)
+    with tempfile.TemporaryDirectory(prefix="navsvc-view-") as folder:
+        settings = Settings(map_path=Path(map_path), triplog_path=Path(folder) / "trips.db")
+        app = create_app(settings, replay=replay)
+        if not args.no_browser:
+            threading.Timer(1.0, webbrowser.open, [url]).start()
+        uvicorn.run(app, host=args.host, port=args.port,
+                    log_level="info" if args.verbose else "warning")
+    return 0
+
+
 _COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate,
-             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send}
+             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send, "view": _cmd_view}

@@ -56,8 +56,11 @@ _CODES = {400: "bad_request", 401: "unauthorized", 404: "not_found", 405: "metho
           503: "unavailable"}
 
 
-def create_app(settings: Settings) -> FastAPI:
-    """The service for one map. Opening the map or trip log fails here, not on first use."""
+def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> FastAPI:
+    """The service for one map. Opening the map or trip log fails here, not on first use.
+
+    ``replay``: a file for the map page to replay (``navsvc view``; see navsvc.web.replay);
+    such a server skips the warm-up, having run the file's packets already."""
     graph = RoadGraph.open(settings.map_path)
     triplog = TripLog(settings.triplog, sync=settings.triplog_sync)
     store = SessionStore(graph, triplog, idle_timeout_s=settings.session_idle_s,
@@ -65,12 +68,14 @@ def create_app(settings: Settings) -> FastAPI:
     metrics = Metrics()
     state = AppState(settings=settings, graph=graph, store=store, metrics=metrics,
                      viewers=ViewerHub(settings.view_history_batches,
-                                       settings.ws_queue_messages, metrics.viewer_dropped.inc))
+                                       settings.ws_queue_messages, metrics.viewer_dropped.inc),
+                     replay=replay)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         redact_api_keys()  # here: uvicorn has set up its loggers by now
-        warm_up(graph)
+        if replay is None:
+            warm_up(graph)
         reopened = store.reopen()
         gc.collect()
         gc.freeze()  # the map and libraries stay: spare them the garbage collector's scans

@@ -17,7 +17,7 @@
   };
 
   // --- the map and its layers -----------------------------------------------------------
-  const map = L.map("map", {zoomSnap: 0.25, preferCanvas: false});
+  const map = L.map("map", {zoomSnap: 0.25, minZoom: 3, maxZoom: 20});
   map.attributionControl.setPrefix("Leaflet");
   map.attributionControl.addAttribution("roads © OpenStreetMap contributors");
   const roadRenderer = L.canvas({padding: 0.3});
@@ -243,7 +243,7 @@
       layers.sigma.setLatLng([p.fused_lat, p.fused_lon]).setRadius(p.position_sigma_m).addTo(map);
     }
     if (!app.followed) {
-      map.setView([p.lat, p.lon], Math.max(map.getZoom(), 17));
+      map.setView([p.lat, p.lon], Math.max(map.getZoom(), 17), {animate: false});
       app.followed = true;
     } else if (app.replay === null && !map.getBounds().pad(-0.1).contains([p.lat, p.lon])) {
       map.panTo([p.lat, p.lon]);
@@ -437,7 +437,7 @@
 
   function fitTrack() {
     const b = layers.fused.getBounds();
-    if (b.isValid()) map.fitBounds(b, {padding: [30, 30]});
+    if (b.isValid()) map.fitBounds(b, {padding: [30, 30], maxZoom: 18, animate: false});
   }
 
   // --- start ----------------------------------------------------------------------------
