@@ -20,7 +20,6 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
@@ -29,6 +28,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from navsvc import __version__
 from navsvc.api.deps import AppState
 from navsvc.api.logs import redact_api_keys
+from navsvc.api.openapi import DOCS_STATIC_DIR, DOCS_STATIC_URL, build_openapi, docs_router
 from navsvc.api.routes import maps, match, ops, sessions, stream, view
 from navsvc.api.settings import Settings
 from navsvc.api.warmup import warm_up
@@ -96,41 +96,21 @@ def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> Fast
 
     app = FastAPI(title="navsvc", version=__version__, lifespan=lifespan,
                   description="Map-matching navigation: vehicles stream sensor packets, the "
-                              "service fuses them and matches them onto the road graph.")
+                              "service fuses them and matches them onto the road graph.",
+                  docs_url=None, redoc_url=None)  # served offline below
     app.state.navsvc = state
     for module in (sessions, stream, view, match, maps, ops):
         app.include_router(module.router, prefix="/v1")
     app.include_router(view.page)
+    app.include_router(docs_router(app))
+    app.mount(DOCS_STATIC_URL, StaticFiles(directory=DOCS_STATIC_DIR), name="docs-static")
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     _add_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
-    app.openapi = lambda: _openapi(app, keys_required=bool(settings.api_keys))  # type: ignore[method-assign]
+    app.openapi = lambda: build_openapi(  # type: ignore[method-assign]
+        app, keys_required=bool(settings.api_keys),
+        max_batch_packets=settings.max_batch_packets)
     return app
-
-
-def _openapi(app: FastAPI, keys_required: bool) -> dict[str, Any]:
-    """The OpenAPI document as the server behaves: every operation may answer 400 (a body
-    that is not JSON) and, with keys, 401; an open server declares no key scheme."""
-    if app.openapi_schema is None:
-        schema = get_openapi(title=app.title, version=app.version,
-                             description=app.description, routes=app.routes)
-        error = {"content": {"application/json": {"schema": {
-            "$ref": "#/components/schemas/ErrorBody"}}}}
-        for path in schema["paths"].values():
-            for operation in path.values():
-                responses = operation.setdefault("responses", {})
-                if "requestBody" in operation:
-                    responses.setdefault("400", {**error, "description": "body is not JSON"})
-                if not keys_required:
-                    operation.pop("security", None)
-                    responses.pop("401", None)
-                elif "security" in operation:
-                    responses.setdefault("401", {**error,
-                                                 "description": "missing or unknown API key"})
-        if not keys_required:
-            schema.get("components", {}).pop("securitySchemes", None)
-        app.openapi_schema = schema
-    return app.openapi_schema
 
 
 async def _restore_sessions(store: SessionStore) -> None:
