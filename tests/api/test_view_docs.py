@@ -101,3 +101,24 @@ def test_docs_pages_load_their_files_from_this_server(server: Server, path: str)
     assert assets and all(a.startswith("/") for a in assets), assets
     for asset in assets:
         assert httpx.get(server.url + asset, timeout=10.0).status_code == 200, asset
+
+
+def test_the_readme_client_example_runs(server: Server, tmp_path: Any) -> None:
+    """The README's "Sending your vehicle's data" example, run against a real server."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = readme[readme.index("## Sending your vehicle's data"):]
+    code = section[section.index("```python") + len("```python"):section.index("```\n", 10)]
+    host = server.url.removeprefix("http://")
+    code = code.replace("127.0.0.1:8000", host)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr
+    lines = [line.split() for line in done.stdout.splitlines()]
+    assert lines and float(lines[0][0]) == 0.0
+    for _t, state, lat, lon in lines:
+        assert state in ("initializing", "on_road", "ambiguous")
+        assert abs(float(lat) - 43.7398) < 1e-3 and abs(float(lon) - 7.4218) < 1e-3
