@@ -51,6 +51,7 @@ bench: $(MAP_DB)
 	$(BIN)/python bench/matching_speed.py --map $(MAP_DB)
 	PYTHONPATH=. $(BIN)/python bench/service_load.py --map $(MAP_DB)
 	PYTHONPATH=. $(BIN)/python bench/restart.py --map $(MAP_DB)
+	PYTHONPATH=. $(BIN)/python bench/viewer_feed.py --map $(MAP_DB)
 	$(BIN)/python bench/ins_eval.py  # needs ../shared/peers/rtklibexplorer-drive0708
 
 clean:
