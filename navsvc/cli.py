@@ -114,10 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sensor packets (JSON Lines)")
     run.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.jsonl",
                      help="where to write matched positions")
-    _add_session_options(run)
+    _add_session_options(run, epilog=MODES_HELP)
 
     ev = sub.add_parser("evaluate", help="accuracy of a run against the truth of its drive",
-                        description="Position error (RMS, 95%%, max) of the output and of "
+                        description="Position error (RMS, 95%, max) of the output and of "
                         "the fusion alone beside raw GPS, drift in each GPS outage, heading "
                         "error, share of epochs on the right road, intersections traversed "
                         "correctly.")
@@ -175,12 +175,17 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("-o", "--output", type=Path, metavar="OUT.jsonl",
                     help="where to write matched positions (default: only a summary)")
     sd.add_argument("--vehicle-id", default="navsvc-send", help="the session's vehicle id")
-    sd.add_argument("--batch", type=int, default=10, help="packets per message (default 10)")
+    sd.add_argument("--batch", type=_batch_arg, default=10,
+                    help=f"packets per message, 1 to {MAX_BATCH} (default 10)")
+    sd.add_argument("--keep", action="store_true",
+                    help="leave the session open at the end (default: close it, which drops "
+                    "its trip log on the server)")
     sd.add_argument("--realtime", action="store_true",
                     help="send at the drive's own pace instead of as fast as possible")
     sd.add_argument("--api-key", default=os.environ.get("NAVSVC_API_KEY"),
                     help="API key (default: $NAVSVC_API_KEY)")
-    _add_session_options(sd)
+    _add_session_options(sd, epilog=MODES_HELP,
+                         sensors_note="; packets of sensors it does not use stay behind")
 
     vw = sub.add_parser("view", help="show a drive or a run on the map page",
                         description="Open the map page on a finished drive (sensor packets: "
@@ -204,16 +209,48 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--port", type=int, default=8001, help="TCP port (default 8001)")
     vw.add_argument("--no-browser", action="store_true",
                     help="do not open a web browser, only print the address")
+    vw.epilog = MODES_HELP
+    _add_verbose_everywhere(sub)
     return parser
 
 
-def _add_session_options(parser: argparse.ArgumentParser) -> None:
+MAX_BATCH = 1000  # the service's default NAVSVC_MAX_BATCH_PACKETS
+MODES_HELP = (
+    "Sensor configurations: gyro_odometer (yaw-rate gyro and wheel odometer; the seed thesis's "
+    "choice), steering_odometer (steering angle and odometer, bicycle model), gyro_accel (gyro "
+    "and forward accelerometer), gyro_two_accels (gyro, forward and lateral accelerometers), "
+    "gps_only (GPS alone, constant turn rate and velocity), strapdown (a full 6-axis IMU: "
+    "strapdown INS/GNSS). GPS fusion modes: ekf (Kalman update, gated and adaptive), rules "
+    "(the thesis's rule-based weighting), fuzzy (the thesis's fuzzy weighting).")
+
+
+def _batch_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 1 <= value <= MAX_BATCH:
+        raise argparse.ArgumentTypeError(f"{text}: must be from 1 to {MAX_BATCH}")
+    return value
+
+
+def _add_verbose_everywhere(sub: Any) -> None:
+    """`-v` after the subcommand too (`navsvc run -v ...`), not only before it."""
+    for parser in sub.choices.values():
+        if not any("--verbose" in a.option_strings for a in parser._actions):
+            parser.add_argument("-v", "--verbose", action="store_true",
+                                default=argparse.SUPPRESS, help="log what happens")
+
+
+def _add_session_options(parser: argparse.ArgumentParser, epilog: str | None = None,
+                         sensors_note: str = "") -> None:
     """The session settings and output switches that `run` and `send` share."""
+    parser.epilog = epilog
     parser.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
-                        help="sensor configuration (default gyro_odometer); `send` leaves "
-                        "packets of other sensors behind")
+                        help=f"sensor configuration (default gyro_odometer{sensors_note}; "
+                        "see below)")
     parser.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
-                        help="GPS fusion mode (default ekf)")
+                        help="GPS fusion mode (default ekf; see below)")
     parser.add_argument("--map-feedback", action="store_true",
                         help="feed confident matches back into the filter as a road "
                         "constraint (bounds drift in GPS outages)")
@@ -306,8 +343,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         rejections += [(line.number, r) for r in result.rejections]
         positions += [position_json(p, frame) for p in result.positions]
     write_records(args.output, positions)
-    for number, r in rejections[:20]:
-        log.warning("%s:%d: %s: %s", args.input, number, r.reason.code, r.detail)
+    for number, r in rejections[5:20]:  # the first 5 are printed below
+        log.info("%s:%d: %s: %s", args.input, number, r.reason.code, r.detail)
     by_reason = Counter(r.reason.code for _, r in rejections)
     summary = {"input": str(args.input), "output": str(args.output), "packets": len(lines),
                "positions": len(positions), "rejected": sum(by_reason.values()),
@@ -397,16 +434,15 @@ def _cmd_send(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from navsvc.sim.simulate import SENSOR_KINDS
-    from navsvc.wire.client import create_session, stream_packets
+    from navsvc.wire.client import close_session, create_session, stream_packets
     from navsvc.wire.jsonl import iter_lines, write_records
 
     left_behind = {"truth", *SENSOR_KINDS["all"]} - set(SENSOR_KINDS[args.sensors])
     lines = list(iter_lines(args.input))
     bad = [line for line in lines if line.error is not None]
-    for line in bad[:5]:
-        log.warning("%s:%d: %s", args.input, line.number, line.error)
-    packets = [line.value for line in lines if line.error is None
-               and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
+    kept = [line for line in lines if line.error is None
+            and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
+    packets = [line.value for line in kept]
     options = {"vehicle_id": args.vehicle_id, "sensors": args.sensors, "fusion": args.fusion,
                "map_feedback": args.map_feedback}
     session_id = create_session(args.url, options, args.api_key)
@@ -415,16 +451,29 @@ def _cmd_send(args: argparse.Namespace) -> int:
         result = stream_packets(args.url, session_id, packets, batch=args.batch,
                                 realtime=args.realtime, api_key=args.api_key,
                                 progress=bar.update)
+    if not args.keep:
+        close_session(args.url, session_id, args.api_key)
     if args.output:
         write_records(args.output, result.positions)
+    problems = [(line.number, "malformed", line.error) for line in bad] + \
+        [(kept[r["index"]].number, r["code"], r["message"]) for r in result.rejected]
+    problems.sort()
     summary = {"session_id": session_id, "packets": len(packets), "accepted": result.accepted,
                "rejected": len(result.rejected), "positions": len(result.positions),
                "unreadable_lines": len(bad), "reconnects": result.reconnects,
-               "output": str(args.output) if args.output else None}
-    print(json.dumps(summary) if args.json else
-          f"session {session_id}: {result.accepted} of {len(packets)} packets accepted, "
+               "closed": not args.keep, "output": str(args.output) if args.output else None,
+               "rejections": [{"line": n, "code": c, "message": m}
+                              for n, c, m in problems[:100]]}
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(f"session {session_id}: {result.accepted} of {len(packets)} packets accepted, "
+          f"{len(result.rejected)} rejected, {len(bad)} unreadable lines, "
           f"{len(result.positions)} positions" + (f" written to {args.output}" if args.output
-                                                    else ""))
+                                                    else "")
+          + ("" if args.keep else "; session closed"))
+    for number, code, message in problems[:5]:
+        print(f"  {args.input}:{number}: {code}: {message}")
     return 0
 
 

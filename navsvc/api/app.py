@@ -23,6 +23,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
+from starlette.routing import compile_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from navsvc import __version__
@@ -157,11 +158,36 @@ def _error(status: int, message: str, **extra: Any) -> JSONResponse:
     return JSONResponse({"error": {"code": code, "message": message, **extra}}, status)
 
 
+def _routing_message(request: Request, exc: HTTPException) -> str:
+    """Say what went wrong in the router's own refusals ("Not Found", "Method Not Allowed")."""
+    method, path = request.method, request.url.path
+    if exc.status_code == 404 and exc.detail == "Not Found":
+        return (f"no route {method} {path}: the API is under /v1 (see /docs), the map view "
+                "at /")
+    if exc.status_code == 405 and exc.detail == "Method Not Allowed":
+        allowed = _allowed_methods(request)
+        return f"{method} is not allowed on {path}" + (f" (allowed: {allowed})" if allowed
+                                                       else "")
+    return str(exc.detail)
+
+
+def _allowed_methods(request: Request) -> str:
+    """The methods of every operation on the path, from the OpenAPI document (Starlette's
+    Allow names only the first route's)."""
+    methods: set[str] = set()
+    for template, operations in request.app.openapi()["paths"].items():
+        if compile_path(template)[0].match(request.url.path):
+            methods |= {m.upper() for m in operations}
+    return ", ".join(sorted(methods))
+
+
 def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
-        response = _error(exc.status_code, str(exc.detail))
+        response = _error(exc.status_code, _routing_message(request, exc))
         response.headers.update(exc.headers or {})  # 405's Allow, for one
+        if exc.status_code == 405 and (allowed := _allowed_methods(request)):
+            response.headers["Allow"] = allowed
         return response
 
     @app.exception_handler(RequestValidationError)

@@ -19,10 +19,10 @@ the ``fastapi-offline`` package (swagger-ui-dist, Apache-2.0; ReDoc, MIT), not a
 
 from __future__ import annotations
 
-from importlib.resources import files
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import fastapi_offline
 from fastapi import APIRouter, FastAPI
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.openapi.utils import get_openapi
@@ -39,7 +39,7 @@ from navsvc.wire.packets import (
     SteeringPacket,
 )
 
-DOCS_STATIC_DIR = Path(str(files("fastapi_offline") / "static"))
+DOCS_STATIC_DIR = Path(fastapi_offline.__file__).resolve().parent / "static"
 DOCS_STATIC_URL = "/static/docs"
 
 DESCRIPTION = """\

@@ -177,3 +177,14 @@ def test_the_api_root_says_where_to_go(server: Server, path: str) -> None:
     body = r.json()
     assert body["service"] == "navsvc" and body["map"] == "monaco"
     assert body["links"]["map_view"] == "/" and body["links"]["docs"] == "/docs"
+
+
+def test_unknown_routes_and_methods_say_what_is_wrong(server: Server) -> None:
+    r = httpx.get(server.url + "/v2/sessions", timeout=10.0)
+    assert r.status_code == 404 and r.json() == {"error": {
+        "code": "not_found", "message": "no route GET /v2/sessions: the API is under /v1 "
+                                        "(see /docs), the map view at /"}}
+    r = httpx.put(server.url + "/v1/sessions", timeout=10.0)
+    assert r.status_code == 405 and r.headers["allow"] == "GET, POST"
+    assert r.json() == {"error": {"code": "method_not_allowed", "message":
+                                  "PUT is not allowed on /v1/sessions (allowed: GET, POST)"}}
