@@ -84,6 +84,8 @@ def test_a_viewer_gets_a_snapshot_then_each_batch_then_the_end(
             snap = json.loads(second.recv(timeout=10))
             assert len(snap["fixes"]) == sent_fixes
             assert len(snap["positions"]) == sent_positions
+        viewer.send(b"\xff binary")  # ignored, the viewer goes on
+        viewer.send("not json")
         viewer.send(json.dumps({"type": "snapshot"}))  # asked for again
         assert json.loads(viewer.recv(timeout=10))["type"] == "snapshot"
         assert client.delete(f"/sessions/{sid}").status_code == 204

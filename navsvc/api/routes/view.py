@@ -82,8 +82,10 @@ async def view(websocket: WebSocket, session_id: str) -> None:
     sender = asyncio.create_task(_send_all(websocket, viewer))
     try:
         while True:
-            message = await websocket.receive_text()
-            if _asks_snapshot(message) and session_id in state.viewers:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            if _asks_snapshot(message.get("text") or "") and session_id in state.viewers:
                 viewer.put(snapshot())
     except (WebSocketDisconnect, RuntimeError):
         pass

@@ -7,6 +7,7 @@
   const OUTAGE_GAP_S = 3.0;  // no GPS fix for longer than this: the track is in an outage
   const POLL_MS = 2000;  // the session list is refreshed this often
   const $ = (id) => document.getElementById(id);
+  const esc = (text) => String(text).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
   const fmt = (v, digits, unit) => (v === null || v === undefined) ? "–"
     : `${Number(v).toFixed(digits)}${unit ? " " + unit : ""}`;
 
@@ -50,7 +51,7 @@
       onEachFeature: (f, l) => {
         const p = f.properties;
         app.roadIndex.set(roadKey(p.u, p.v, p.key), l);
-        l.bindTooltip(`${p.name || p.highway} (${p.u}→${p.v}, ${Math.round(p.length_m)} m)`,
+        l.bindTooltip(esc(`${p.name || p.highway} (${p.u}→${p.v}, ${Math.round(p.length_m)} m)`),
                       {sticky: true});
       },
     });
@@ -131,9 +132,10 @@
         const line = L.polyline(this.prevFused ? [this.prevFused] : [],
                                 {color: "#9467bd", weight: 4, dashArray: "6 6"})
           .addTo(layers.outages);
-        this.open = {start: this.lastFixT, end: null, line};
-        line.bindTooltip(() => outageText(this.outages.indexOf(this.open) >= 0 ? this.open : null));
-        this.outages.push(this.open);
+        const outage = {start: this.lastFixT, end: null, line};
+        line.bindTooltip(() => outageText(outage));
+        this.open = outage;
+        this.outages.push(outage);
       }
       this.open.line.addLatLng(fused);
       this.open.last = p.t;
@@ -146,7 +148,6 @@
   const track = new Track();
 
   function outageText(o) {
-    if (!o) return "GPS outage";
     const end = o.end === null ? (track.lastT ?? o.start) : o.end;
     return `GPS outage from t=${fmt(o.start, 1)} s, ${fmt(end - o.start, 1)} s` +
            (o.end === null ? " (ongoing)" : "");
@@ -223,7 +224,7 @@
       if (road) {
         L.polyline(road.getLatLngs(), {color: "#ff7f0e", weight: 3 + 10 * c.probability,
                                        opacity: 0.75})
-          .bindTooltip(`${label}: ${(100 * c.probability).toFixed(0)} %`, {permanent: false})
+          .bindTooltip(esc(`${label}: ${(100 * c.probability).toFixed(0)} %`))
           .addTo(layers.candidates);
       }
       const tr = document.createElement("tr");
