@@ -58,7 +58,7 @@ def live(sample_db: Path, tmp_path_factory: pytest.TempPathFactory) -> Any:
 
 
 def test_the_live_map_draws_roads_and_a_streamed_drive_as_it_arrives(
-        live: Server, page: Any, sample_graph: RoadGraph, tmp_path: Path) -> None:
+        page: Any, live: Server, sample_graph: RoadGraph, tmp_path: Path) -> None:
     page.goto(live.url + "/")
     start = wait_for(page, "d.roads > 0")
     assert start["roads"] == len(httpx.get(
@@ -97,7 +97,7 @@ def test_the_live_map_draws_roads_and_a_streamed_drive_as_it_arrives(
     screenshot(page, "live-map.png", tmp_path)
 
 
-def test_a_replay_shows_the_whole_drive(sample_db: Path, sample_graph: RoadGraph, page: Any,
+def test_a_replay_shows_the_whole_drive(page: Any, sample_db: Path, sample_graph: RoadGraph,
                                         tmp_path: Path) -> None:
     drive = simulate_drive(sample_graph, DriveSpec(duration_s=120.0, seed=2,
                                                    outages=((60.0, 20.0),)))
@@ -127,7 +127,7 @@ def test_a_replay_shows_the_whole_drive(sample_db: Path, sample_graph: RoadGraph
 
 
 def test_with_keys_the_page_asks_for_one_and_shows_only_its_sessions(
-        db: Path, page: Any, tmp_path: Path) -> None:
+        page: Any, db: Path, tmp_path: Path) -> None:
     s = start_server(db, tmp_path / "server.log", env={"NAVSVC_API_KEYS": "key-one,key-two"})
     try:
         mine = s.client(headers={"X-API-Key": "key-one"}).post(
