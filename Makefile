@@ -8,7 +8,7 @@ MAP_DB ?= maps/monaco.db
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: run test bench map clean
+.PHONY: run test bench map clean browser
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,11 +22,22 @@ $(MAP_DB): $(MAP_SOURCE) $(BIN)/.installed
 map: $(MAP_DB)
 
 run: $(MAP_DB)
-	@echo "navsvc: serving $(MAP_DB) on http://$(HOST):$(PORT)/v1 (API docs: /docs); Ctrl-C stops"
+	@echo "navsvc: serving $(MAP_DB): open http://$(HOST):$(PORT)/ for the live map (API: /v1, docs: /docs); Ctrl-C stops"
 	$(BIN)/navsvc serve --map $(MAP_DB) --host $(HOST) --port $(PORT)
 
-test: $(BIN)/.installed
+test: $(BIN)/.installed browser
 	$(BIN)/python -m pytest
+
+# The map page's browser tests (tests/web) drive Debian's Chromium: installed here with apt-get
+# when it is missing and we are root (as CI is); otherwise those tests skip and say why.
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 \
+	  || { if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	         echo "make test: installing Chromium for the browser tests (apt-get)"; \
+	         apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	           chromium >/dev/null \
+	         || echo "make test: apt-get could not install Chromium: browser tests will skip"; \
+	       else echo "make test: no Chromium (apt-get install chromium as root): browser tests will skip"; fi; }
 
 bench: $(MAP_DB)
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
@@ -40,6 +51,7 @@ bench: $(MAP_DB)
 	$(BIN)/python bench/matching_speed.py --map $(MAP_DB)
 	PYTHONPATH=. $(BIN)/python bench/service_load.py --map $(MAP_DB)
 	PYTHONPATH=. $(BIN)/python bench/restart.py --map $(MAP_DB)
+	PYTHONPATH=. $(BIN)/python bench/viewer_feed.py --map $(MAP_DB)
 	$(BIN)/python bench/ins_eval.py  # needs ../shared/peers/rtklibexplorer-drive0708
 
 clean:

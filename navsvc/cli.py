@@ -16,29 +16,27 @@ import sys
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tqdm import tqdm
+from navsvc import __version__
+from navsvc.errors import ConfigError, NavsvcError
 
-from navsvc.errors import ConfigError, NavsvcError, Rejection, RejectReason
-from navsvc.fusion import GpsMode, SensorConfig
-from navsvc.matching.hmm import HmmConfig
-from navsvc.session import VehicleSession, config_from_options
-from navsvc.sim.evaluate import Evaluation, evaluate
-from navsvc.sim.gnss_replay import GnssErrorRecording, parse_urbannav
-from navsvc.sim.harsh import harsh_urban_spec
-from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
-from navsvc.wire.jsonl import iter_lines, read_records, write_records
-from navsvc.wire.positions import position_json
-from navsvc.wire.route import match_trace
-from navsvc.wire.traces import read_trace
-from roadgraph import RoadGraph, RoadGraphError
+if TYPE_CHECKING:
+    from navsvc.sim.evaluate import Evaluation
+    from navsvc.sim.gnss_replay import GnssErrorRecording
 
+# Imports are lazy: each command imports what it uses, so that `--help`, `--version` and the
+# light commands start without NumPy, numba, networkx or FastAPI (they took ~1-4 s).
 log = logging.getLogger("navsvc")
 
-SENSOR_CHOICES = [c.value for c in SensorConfig]
+# The values of navsvc.fusion's SensorConfig, GpsMode and navsvc.sim's SENSOR_KINDS, written
+# out so that building the parser imports neither (tests/cli/test_startup.py checks they agree)
+SENSOR_CHOICES = ["gyro_odometer", "steering_odometer", "gyro_accel", "gyro_two_accels",
+                  "gps_only", "strapdown"]
+FUSION_CHOICES = ["ekf", "rules", "fuzzy"]
+SIMULATE_SENSOR_CHOICES = ["all", *SENSOR_CHOICES]
+HMM_SIGMA_M = 10.0  # HmmConfig.sigma_m
 URBANNAV_DIR = Path(__file__).resolve().parent.parent / "tests" / "data" / "urbannav"
-FUSION_CHOICES = [m.value for m in GpsMode]
 
 
 def _outage_arg(text: str) -> tuple[float, float]:
@@ -70,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="navsvc", description="Map-matching navigation: sensor fusion onto a road graph.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log what happens")
+    parser.add_argument("--version", action="version", version=f"navsvc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     sim = sub.add_parser("simulate", help="simulate a drive with truth and sensor packets",
@@ -87,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar="START:LENGTH",
                      help="no GPS from START for LENGTH seconds (repeatable); tunnels on the "
                      "map also block GPS")
-    sim.add_argument("--sensors", choices=[*SENSOR_KINDS], default="all",
+    sim.add_argument("--sensors", choices=SIMULATE_SENSOR_CHOICES, default="all",
                      help="which sensors the vehicle has: a sensor configuration, or all of "
                      "them (default all)")
     sim.add_argument("--profile", choices=["default", "harsh-urban"], default="default",
@@ -115,10 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sensor packets (JSON Lines)")
     run.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.jsonl",
                      help="where to write matched positions")
-    _add_session_options(run)
+    _add_session_options(run, epilog=MODES_HELP)
 
     ev = sub.add_parser("evaluate", help="accuracy of a run against the truth of its drive",
-                        description="Position error (RMS, 95%%, max) of the output and of "
+                        description="Position error (RMS, 95%, max) of the output and of "
                         "the fusion alone beside raw GPS, drift in each GPS outage, heading "
                         "error, share of epochs on the right road, intersections traversed "
                         "correctly.")
@@ -142,8 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
     mt.add_argument("--map", required=True, type=Path, metavar="DB", help="road-graph database")
     mt.add_argument("-o", "--output", type=Path, metavar="ROUTE.json",
                     help="write the route JSON here (default: stdout)")
-    mt.add_argument("--sigma", type=_positive_arg, default=HmmConfig.sigma_m, metavar="M",
-                    help=f"GPS error in metres (default {HmmConfig.sigma_m:g})")
+    mt.add_argument("--sigma", type=_positive_arg, default=HMM_SIGMA_M, metavar="M",
+                    help=f"GPS error in metres (default {HMM_SIGMA_M:g})")
     mt.add_argument("--json", action="store_true",
                     help="print the whole route JSON even with -o (default: a summary)")
 
@@ -161,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--triplog", type=Path, metavar="FILE",
                     help="trip log SQLite file (default: $NAVSVC_TRIPLOG, else DB's stem + "
                     ".trips.db beside DB)")
+    sv.add_argument("--warm-up-only", action="store_true",
+                    help="compile the filter kernels into numba's cache and exit (the Docker "
+                    "build does this, so that a container starts in seconds)")
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
                         description="Create a session on a running `navsvc serve`, stream the "
@@ -173,22 +175,82 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("-o", "--output", type=Path, metavar="OUT.jsonl",
                     help="where to write matched positions (default: only a summary)")
     sd.add_argument("--vehicle-id", default="navsvc-send", help="the session's vehicle id")
-    sd.add_argument("--batch", type=int, default=10, help="packets per message (default 10)")
+    sd.add_argument("--batch", type=_batch_arg, default=10,
+                    help=f"packets per message, 1 to {MAX_BATCH} (default 10)")
+    sd.add_argument("--keep", action="store_true",
+                    help="leave the session open at the end (default: close it, which drops "
+                    "its trip log on the server)")
     sd.add_argument("--realtime", action="store_true",
                     help="send at the drive's own pace instead of as fast as possible")
     sd.add_argument("--api-key", default=os.environ.get("NAVSVC_API_KEY"),
                     help="API key (default: $NAVSVC_API_KEY)")
-    _add_session_options(sd)
+    _add_session_options(sd, epilog=MODES_HELP,
+                         sensors_note="; packets of sensors it does not use stay behind")
+
+    vw = sub.add_parser("view", help="show a drive or a run on the map page",
+                        description="Open the map page on a finished drive (sensor packets: "
+                        "replayed through fusion and matching as `navsvc run` does, raw fixes "
+                        "and matched positions drawn) or a run (matched positions from `navsvc "
+                        "run` or `navsvc send -o`), served by a local navsvc server until "
+                        "Ctrl-C. A slider and Play go through it in time.")
+    vw.add_argument("input", type=Path, metavar="DRIVE.jsonl|OUT.jsonl",
+                    help="a drive or a run (JSON Lines)")
+    vw.add_argument("--map", type=Path, metavar="DB",
+                    help="road-graph database (default: $NAVSVC_MAP)")
+    vw.add_argument("--truth", action="store_true",
+                    help="draw the truth track too (a drive's kind truth records)")
+    vw.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
+                    help="for a drive: the sensor configuration to replay it with (default "
+                    "gyro_odometer)")
+    vw.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
+                    help="for a drive: GPS fusion mode (default ekf)")
+    vw.add_argument("--host", default="127.0.0.1", help="address to listen on (default "
+                    "127.0.0.1)")
+    vw.add_argument("--port", type=int, default=8001, help="TCP port (default 8001)")
+    vw.add_argument("--no-browser", action="store_true",
+                    help="do not open a web browser, only print the address")
+    vw.epilog = MODES_HELP
+    _add_verbose_everywhere(sub)
     return parser
 
 
-def _add_session_options(parser: argparse.ArgumentParser) -> None:
+MAX_BATCH = 1000  # the service's default NAVSVC_MAX_BATCH_PACKETS
+MODES_HELP = (
+    "Sensor configurations: gyro_odometer (yaw-rate gyro and wheel odometer; the seed thesis's "
+    "choice), steering_odometer (steering angle and odometer, bicycle model), gyro_accel (gyro "
+    "and forward accelerometer), gyro_two_accels (gyro, forward and lateral accelerometers), "
+    "gps_only (GPS alone, constant turn rate and velocity), strapdown (a full 6-axis IMU: "
+    "strapdown INS/GNSS). GPS fusion modes: ekf (Kalman update, gated and adaptive), rules "
+    "(the thesis's rule-based weighting), fuzzy (the thesis's fuzzy weighting).")
+
+
+def _batch_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 1 <= value <= MAX_BATCH:
+        raise argparse.ArgumentTypeError(f"{text}: must be from 1 to {MAX_BATCH}")
+    return value
+
+
+def _add_verbose_everywhere(sub: Any) -> None:
+    """`-v` after the subcommand too (`navsvc run -v ...`), not only before it."""
+    for parser in sub.choices.values():
+        if not any("--verbose" in a.option_strings for a in parser._actions):
+            parser.add_argument("-v", "--verbose", action="store_true",
+                                default=argparse.SUPPRESS, help="log what happens")
+
+
+def _add_session_options(parser: argparse.ArgumentParser, epilog: str | None = None,
+                         sensors_note: str = "") -> None:
     """The session settings and output switches that `run` and `send` share."""
+    parser.epilog = epilog
     parser.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
-                        help="sensor configuration (default gyro_odometer); `send` leaves "
-                        "packets of other sensors behind")
+                        help=f"sensor configuration (default gyro_odometer{sensors_note}; "
+                        "see below)")
     parser.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
-                        help="GPS fusion mode (default ekf)")
+                        help="GPS fusion mode (default ekf; see below)")
     parser.add_argument("--map-feedback", action="store_true",
                         help="feed confident matches back into the filter as a road "
                         "constraint (bounds drift in GPS outages)")
@@ -202,12 +264,27 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(_COMMANDS[args.command](args))
-    except (NavsvcError, RoadGraphError) as exc:
+    except Exception as exc:
+        if not isinstance(exc, _expected_errors()):
+            raise
         print(f"navsvc: error: {exc}", file=sys.stderr)
         return 1
 
 
+def _expected_errors() -> tuple[type[Exception], ...]:
+    """NavsvcError, and RoadGraphError when roadgraph was imported (else none was raised)."""
+    roadgraph_errors = sys.modules.get("roadgraph.errors")
+    if roadgraph_errors is None:
+        return (NavsvcError,)
+    return NavsvcError, roadgraph_errors.RoadGraphError
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from navsvc.sim.harsh import harsh_urban_spec
+    from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+    from navsvc.wire.jsonl import write_records
+    from roadgraph import RoadGraph
+
     graph = RoadGraph.open(args.map)
     spec = DriveSpec(duration_s=args.duration, seed=args.seed, outages=tuple(args.outage),
                      sensors=SENSOR_KINDS[args.sensors], full_imu=args.sensors == "strapdown",
@@ -226,6 +303,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _urbannav() -> GnssErrorRecording:
+    from navsvc.sim.gnss_replay import parse_urbannav
+
     spp, truth = URBANNAV_DIR / "spp_fixes.csv", URBANNAV_DIR / "groundTruth_TST.csv"
     try:
         return parse_urbannav(spp.read_text(), truth.read_text())
@@ -235,6 +314,14 @@ def _urbannav() -> GnssErrorRecording:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from navsvc.errors import Rejection, RejectReason
+    from navsvc.session import VehicleSession, config_from_options
+    from navsvc.wire.jsonl import iter_lines, write_records
+    from navsvc.wire.positions import position_json
+    from roadgraph import RoadGraph
+
     graph = RoadGraph.open(args.map)
     try:
         config = config_from_options({"sensors": args.sensors, "fusion": args.fusion,
@@ -256,8 +343,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         rejections += [(line.number, r) for r in result.rejections]
         positions += [position_json(p, frame) for p in result.positions]
     write_records(args.output, positions)
-    for number, r in rejections[:20]:
-        log.warning("%s:%d: %s: %s", args.input, number, r.reason.code, r.detail)
+    for number, r in rejections[5:20]:  # the first 5 are printed below
+        log.info("%s:%d: %s: %s", args.input, number, r.reason.code, r.detail)
     by_reason = Counter(r.reason.code for _, r in rejections)
     summary = {"input": str(args.input), "output": str(args.output), "packets": len(lines),
                "positions": len(positions), "rejected": sum(by_reason.values()),
@@ -275,6 +362,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from navsvc.sim.evaluate import evaluate
+    from navsvc.wire.jsonl import read_records
+    from roadgraph import RoadGraph
+
     drive = read_records(args.truth)
     estimates = read_records(args.estimate)
     try:
@@ -317,6 +408,11 @@ def format_evaluation(e: Evaluation) -> str:
 
 
 def _cmd_match(args: argparse.Namespace) -> int:
+    from navsvc.matching.hmm import HmmConfig
+    from navsvc.wire.route import match_trace
+    from navsvc.wire.traces import read_trace
+    from roadgraph import RoadGraph
+
     graph = RoadGraph.open(args.map)
     fixes = read_trace(args.trace)
     route = match_trace(graph, fixes, HmmConfig(sigma_m=args.sigma, beta_m=2.0 * args.sigma))
@@ -336,15 +432,18 @@ def _cmd_match(args: argparse.Namespace) -> int:
 
 
 def _cmd_send(args: argparse.Namespace) -> int:
-    from navsvc.wire.client import create_session, stream_packets
+    from tqdm import tqdm
+
+    from navsvc.sim.simulate import SENSOR_KINDS
+    from navsvc.wire.client import close_session, create_session, stream_packets
+    from navsvc.wire.jsonl import iter_lines, write_records
 
     left_behind = {"truth", *SENSOR_KINDS["all"]} - set(SENSOR_KINDS[args.sensors])
     lines = list(iter_lines(args.input))
     bad = [line for line in lines if line.error is not None]
-    for line in bad[:5]:
-        log.warning("%s:%d: %s", args.input, line.number, line.error)
-    packets = [line.value for line in lines if line.error is None
-               and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
+    kept = [line for line in lines if line.error is None
+            and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
+    packets = [line.value for line in kept]
     options = {"vehicle_id": args.vehicle_id, "sensors": args.sensors, "fusion": args.fusion,
                "map_feedback": args.map_feedback}
     session_id = create_session(args.url, options, args.api_key)
@@ -353,16 +452,29 @@ def _cmd_send(args: argparse.Namespace) -> int:
         result = stream_packets(args.url, session_id, packets, batch=args.batch,
                                 realtime=args.realtime, api_key=args.api_key,
                                 progress=bar.update)
+    if not args.keep:
+        close_session(args.url, session_id, args.api_key)
     if args.output:
         write_records(args.output, result.positions)
+    problems = [(line.number, "malformed", line.error) for line in bad] + \
+        [(kept[r["index"]].number, r["code"], r["message"]) for r in result.rejected]
+    problems.sort()
     summary = {"session_id": session_id, "packets": len(packets), "accepted": result.accepted,
                "rejected": len(result.rejected), "positions": len(result.positions),
                "unreadable_lines": len(bad), "reconnects": result.reconnects,
-               "output": str(args.output) if args.output else None}
-    print(json.dumps(summary) if args.json else
-          f"session {session_id}: {result.accepted} of {len(packets)} packets accepted, "
+               "closed": not args.keep, "output": str(args.output) if args.output else None,
+               "rejections": [{"line": n, "code": c, "message": m}
+                              for n, c, m in problems[:100]]}
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(f"session {session_id}: {result.accepted} of {len(packets)} packets accepted, "
+          f"{len(result.rejected)} rejected, {len(bad)} unreadable lines, "
           f"{len(result.positions)} positions" + (f" written to {args.output}" if args.output
-                                                    else ""))
+                                                    else "")
+          + ("" if args.keep else "; session closed"))
+    for number, code, message in problems[:5]:
+        print(f"  {args.input}:{number}: {code}: {message}")
     return 0
 
 
@@ -372,6 +484,15 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from navsvc.api import Settings, create_app
 
     logging.getLogger("navsvc").setLevel(logging.INFO)  # a service says what it does
+    if args.warm_up_only:
+        from navsvc.api.warmup import warm_up
+        from roadgraph import RoadGraph
+
+        map_path = args.map or os.environ.get("NAVSVC_MAP")
+        if not map_path:
+            raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
+        warm_up(RoadGraph.open(map_path))
+        return 0
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog)
     app = create_app(settings)
     # no per-message compression: replies are small, and deflate cost more CPU than it saved
@@ -381,5 +502,39 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    import tempfile
+    import threading
+    import webbrowser
+
+    import uvicorn
+
+    from navsvc.api import Settings, create_app
+    from navsvc.web.replay import load_replay
+    from roadgraph import RoadGraph
+
+    map_path = args.map or os.environ.get("NAVSVC_MAP")
+    if not map_path:
+        raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
+    graph = RoadGraph.open(Path(map_path))
+    replay = load_replay(args.input, graph, {"sensors": args.sensors, "fusion": args.fusion},
+                         with_truth=args.truth)
+    for problem in replay["problems"][:5]:
+        print(f"  {problem}", file=sys.stderr)
+    if args.truth and not replay["truth"]:
+        print(f"navsvc: {args.input} has no truth records", file=sys.stderr)
+    url = f"http://{args.host}:{args.port}/"
+    print(f"{args.input}: {len(replay['fixes'])} fixes, {len(replay['positions'])} positions; "
+          f"map view on {url} (Ctrl-C stops)", flush=True)
+    with tempfile.TemporaryDirectory(prefix="navsvc-view-") as folder:
+        settings = Settings(map_path=Path(map_path), triplog_path=Path(folder) / "trips.db")
+        app = create_app(settings, replay=replay)
+        if not args.no_browser:
+            threading.Timer(1.0, webbrowser.open, [url]).start()
+        uvicorn.run(app, host=args.host, port=args.port,
+                    log_level="info" if args.verbose else "warning")
+    return 0
+
+
 _COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate,
-             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send}
+             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send, "view": _cmd_view}

@@ -28,6 +28,10 @@ class Metrics:
             "navsvc_websocket_messages_dropped",
             "Outgoing WebSocket messages dropped because the client read too slowly",
             registry=self.registry)
+        self.viewer_dropped = Counter(
+            "navsvc_viewer_messages_dropped",
+            "Map viewer updates dropped because the viewer read too slowly",
+            registry=self.registry)
         self.batch_seconds = Histogram(
             "navsvc_batch_seconds",
             "Time from receiving a batch of packets to its matched positions being logged "

@@ -20,16 +20,19 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
+from starlette.routing import compile_path
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from navsvc import __version__
 from navsvc.api.deps import AppState
 from navsvc.api.logs import redact_api_keys
-from navsvc.api.routes import maps, match, ops, sessions, stream
+from navsvc.api.openapi import DOCS_STATIC_DIR, DOCS_STATIC_URL, build_openapi, docs_router
+from navsvc.api.routes import maps, match, ops, sessions, stream, view
 from navsvc.api.settings import Settings
+from navsvc.api.warmup import warm_up
 from navsvc.errors import (
     BatchAlreadyApplied,
     ConfigError,
@@ -39,8 +42,10 @@ from navsvc.errors import (
     TraceError,
 )
 from navsvc.metrics import Metrics
-from navsvc.session import SessionConfig, SessionStore, VehicleSession
+from navsvc.session import SessionStore
 from navsvc.triplog import TripLog
+from navsvc.web import STATIC_DIR
+from navsvc.web.feed import ViewerHub
 from roadgraph import RoadGraph, RoadGraphError
 
 log = logging.getLogger(__name__)
@@ -52,18 +57,26 @@ _CODES = {400: "bad_request", 401: "unauthorized", 404: "not_found", 405: "metho
           503: "unavailable"}
 
 
-def create_app(settings: Settings) -> FastAPI:
-    """The service for one map. Opening the map or trip log fails here, not on first use."""
+def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> FastAPI:
+    """The service for one map. Opening the map or trip log fails here, not on first use.
+
+    ``replay``: a file for the map page to replay (``navsvc view``; see navsvc.web.replay);
+    such a server skips the warm-up, having run the file's packets already."""
     graph = RoadGraph.open(settings.map_path)
     triplog = TripLog(settings.triplog, sync=settings.triplog_sync)
     store = SessionStore(graph, triplog, idle_timeout_s=settings.session_idle_s,
                          max_sessions_per_owner=settings.max_sessions_per_key)
-    state = AppState(settings=settings, graph=graph, store=store, metrics=Metrics())
+    metrics = Metrics()
+    state = AppState(settings=settings, graph=graph, store=store, metrics=metrics,
+                     viewers=ViewerHub(settings.view_history_batches,
+                                       settings.ws_queue_messages, metrics.viewer_dropped.inc),
+                     replay=replay)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         redact_api_keys()  # here: uvicorn has set up its loggers by now
-        warm_up(graph)
+        if replay is None:
+            warm_up(graph)
         reopened = store.reopen()
         gc.collect()
         gc.freeze()  # the map and libraries stay: spare them the garbage collector's scans
@@ -84,51 +97,21 @@ def create_app(settings: Settings) -> FastAPI:
 
     app = FastAPI(title="navsvc", version=__version__, lifespan=lifespan,
                   description="Map-matching navigation: vehicles stream sensor packets, the "
-                              "service fuses them and matches them onto the road graph.")
+                              "service fuses them and matches them onto the road graph.",
+                  docs_url=None, redoc_url=None)  # served offline below
     app.state.navsvc = state
-    for module in (sessions, stream, match, maps, ops):
+    for module in (sessions, stream, view, match, maps, ops):
         app.include_router(module.router, prefix="/v1")
+    app.include_router(view.page)
+    app.include_router(docs_router(app))
+    app.mount(DOCS_STATIC_URL, StaticFiles(directory=DOCS_STATIC_DIR), name="docs-static")
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     _add_error_handlers(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
-    app.openapi = lambda: _openapi(app, keys_required=bool(settings.api_keys))  # type: ignore[method-assign]
+    app.openapi = lambda: build_openapi(  # type: ignore[method-assign]
+        app, keys_required=bool(settings.api_keys),
+        max_batch_packets=settings.max_batch_packets)
     return app
-
-
-def _openapi(app: FastAPI, keys_required: bool) -> dict[str, Any]:
-    """The OpenAPI document as the server behaves: every operation may answer 400 (a body
-    that is not JSON) and, with keys, 401; an open server declares no key scheme."""
-    if app.openapi_schema is None:
-        schema = get_openapi(title=app.title, version=app.version,
-                             description=app.description, routes=app.routes)
-        error = {"content": {"application/json": {"schema": {
-            "$ref": "#/components/schemas/ErrorBody"}}}}
-        for path in schema["paths"].values():
-            for operation in path.values():
-                responses = operation.setdefault("responses", {})
-                if "requestBody" in operation:
-                    responses.setdefault("400", {**error, "description": "body is not JSON"})
-                if not keys_required:
-                    operation.pop("security", None)
-                    responses.pop("401", None)
-                elif "security" in operation:
-                    responses.setdefault("401", {**error,
-                                                 "description": "missing or unknown API key"})
-        if not keys_required:
-            schema.get("components", {}).pop("securitySchemes", None)
-        app.openapi_schema = schema
-    return app.openapi_schema
-
-
-def warm_up(graph: RoadGraph) -> None:
-    """Run a few packets of every kind through a throwaway session, so that the compiled
-    kernels (numba) are loaded before the first client's packets rather than stalling them."""
-    node = graph.nodes[0]
-    session = VehicleSession(SessionConfig(), graph)
-    fixes = [{"t": float(i), "kind": "gps", "lat": node.lat_deg + 1e-4 * i,
-              "lon": node.lon_deg, "speed_mps": 11.0} for i in range(3)]
-    inertial = [{"t": 2.0 + 0.01 * i, "kind": "imu", "yaw_rate_dps": 0.0} for i in range(1, 5)]
-    odometer = [{"t": 2.0 + 0.02 * i, "kind": "odometer", "speed_mps": 11.0} for i in range(1, 3)]
-    session.add_records(sorted(fixes + inertial + odometer, key=lambda r: r["t"]))
 
 
 async def _restore_sessions(store: SessionStore) -> None:
@@ -148,6 +131,8 @@ async def _expire_idle(state: AppState) -> None:
     while True:
         await asyncio.sleep(period)
         expired = state.store.expire_idle()
+        for session_id in expired:
+            state.viewers.end(session_id)
         state.metrics.sessions_expired.inc(len(expired))
         state.metrics.sessions.set(len(state.store))
 
@@ -173,11 +158,36 @@ def _error(status: int, message: str, **extra: Any) -> JSONResponse:
     return JSONResponse({"error": {"code": code, "message": message, **extra}}, status)
 
 
+def _routing_message(request: Request, exc: HTTPException) -> str:
+    """Say what went wrong in the router's own refusals ("Not Found", "Method Not Allowed")."""
+    method, path = request.method, request.url.path
+    if exc.status_code == 404 and exc.detail == "Not Found":
+        return (f"no route {method} {path}: the API is under /v1 (see /docs), the map view "
+                "at /")
+    if exc.status_code == 405 and exc.detail == "Method Not Allowed":
+        allowed = _allowed_methods(request)
+        return f"{method} is not allowed on {path}" + (f" (allowed: {allowed})" if allowed
+                                                       else "")
+    return str(exc.detail)
+
+
+def _allowed_methods(request: Request) -> str:
+    """The methods of every operation on the path, from the OpenAPI document (Starlette's
+    Allow names only the first route's)."""
+    methods: set[str] = set()
+    for template, operations in request.app.openapi()["paths"].items():
+        if compile_path(template)[0].match(request.url.path):
+            methods |= {m.upper() for m in operations}
+    return ", ".join(sorted(methods))
+
+
 def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
-        response = _error(exc.status_code, str(exc.detail))
+        response = _error(exc.status_code, _routing_message(request, exc))
         response.headers.update(exc.headers or {})  # 405's Allow, for one
+        if exc.status_code == 405 and (allowed := _allowed_methods(request)):
+            response.headers["Allow"] = allowed
         return response
 
     @app.exception_handler(RequestValidationError)

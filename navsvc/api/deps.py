@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import secrets
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Request, WebSocket
 from fastapi.security import APIKeyHeader
@@ -13,6 +13,7 @@ from fastapi.security import APIKeyHeader
 from navsvc.api.settings import Settings
 from navsvc.metrics import Metrics
 from navsvc.session import SessionStore, key_bytes, owner_of
+from navsvc.web.feed import ViewerHub
 from roadgraph import RoadGraph
 
 API_KEY_HEADER = "X-API-Key"
@@ -26,6 +27,8 @@ class AppState:
     graph: RoadGraph
     store: SessionStore
     metrics: Metrics
+    viewers: ViewerHub = field(default_factory=ViewerHub)  # the map page's live feeds
+    replay: dict[str, Any] | None = None  # the file `navsvc view` replays, if any
 
     @cached_property
     def api_keys(self) -> tuple[bytes, ...]:

@@ -12,6 +12,7 @@
 | ``NAVSVC_MAX_SESSIONS_PER_KEY`` | 10000 | open sessions per API key (429 beyond) |
 | ``NAVSVC_SESSION_IDLE_S`` | 3600 | a session with no packet for this long ends |
 | ``NAVSVC_WS_QUEUE`` | 64 | replies queued per WebSocket before the oldest is dropped |
+| ``NAVSVC_VIEW_HISTORY`` | 7200 | batches with fixes or positions kept per watched session |
 """
 
 from __future__ import annotations
@@ -39,10 +40,12 @@ class Settings:
     max_sessions_per_key: int = 10_000
     session_idle_s: float = 3600.0
     ws_queue_messages: int = 64
+    view_history_batches: int = 7200  # per session a map viewer watches (navsvc.web.feed)
 
     def __post_init__(self) -> None:
         for name in ("max_body_bytes", "max_batch_packets", "max_trace_points",
-                     "max_sessions_per_key", "session_idle_s", "ws_queue_messages"):
+                     "max_sessions_per_key", "session_idle_s", "ws_queue_messages",
+                     "view_history_batches"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.triplog_sync not in ("normal", "full"):
@@ -66,9 +69,9 @@ class Settings:
         return cls(**values)
 
 
-_ENV_NAMES = {"map_path": "map", "triplog_path": "triplog"}
+_ENV_NAMES = {"map_path": "map", "triplog_path": "triplog", "view_history_batches": "view_history"}
 _INTS = {"max_body_bytes", "max_batch_packets", "max_trace_points", "max_sessions_per_key",
-         "ws_queue_messages"}
+         "ws_queue_messages", "view_history_batches"}
 
 
 def _convert(field: str, text: str, env_name: str) -> Any:

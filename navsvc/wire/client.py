@@ -1,15 +1,20 @@
 """A client of the service: create a session, stream packets over its WebSocket, collect the
-matched positions (``navsvc send``, and a model for integrators)."""
+matched positions, end the session (``navsvc send``, and a model for integrators).
+
+It needs nothing beyond the service's own runtime dependencies: the two REST calls go through
+the standard library (``urllib.request``), the stream through ``websockets`` (which the server
+uses too), so ``navsvc send`` works in any install, the Docker image's included."""
 
 from __future__ import annotations
 
 import json
 import time
+import urllib.error
+import urllib.request
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import httpx
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.sync.client import connect
 
@@ -31,16 +36,40 @@ class StreamResult:
     reconnects: int = 0  # connections that dropped and were made again
 
 
-def create_session(url: str, options: dict[str, Any], api_key: str | None = None) -> str:
+def _request(method: str, url: str, path: str, body: Any = None, api_key: str | None = None,
+             timeout_s: float = 30.0) -> tuple[int, bytes]:
+    """One HTTP request to the service at ``url``; returns the status and body (an error
+    status too, not raised)."""
     headers = {"X-API-Key": api_key} if api_key else {}
+    data = None
+    if body is not None:
+        data = json.dumps(body).encode()
+        headers["Content-Type"] = "application/json"
+    request = urllib.request.Request(url + path, data=data, headers=headers, method=method)
     try:
-        r = httpx.post(f"{url}/v1/sessions", json=options, headers=headers, timeout=30.0)
-    except httpx.TransportError as exc:
-        raise ServiceError(f"{url}: cannot connect: {exc}") from exc
-    if r.status_code != 201:
-        raise ServiceError(f"{url}: session refused ({r.status_code}): {r.text}")
-    session_id: str = r.json()["id"]
+        with urllib.request.urlopen(request, timeout=timeout_s) as response:
+            return int(response.status), bytes(response.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read()
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise ServiceError(f"{url}: cannot connect: {reason}") from exc
+
+
+def create_session(url: str, options: dict[str, Any], api_key: str | None = None) -> str:
+    status, body = _request("POST", url, "/v1/sessions", options, api_key)
+    if status != 201:
+        raise ServiceError(f"{url}: session refused ({status}): {body.decode(errors='replace')}")
+    session_id: str = json.loads(body)["id"]
     return session_id
+
+
+def close_session(url: str, session_id: str, api_key: str | None = None) -> None:
+    """End the session (its trip log is dropped); one already gone is not an error."""
+    status, body = _request("DELETE", url, f"/v1/sessions/{session_id}", api_key=api_key)
+    if status not in (204, 404):
+        raise ServiceError(f"{url}: session {session_id} not closed ({status}): "
+                           f"{body.decode(errors='replace')}")
 
 
 def stream_packets(url: str, session_id: str, packets: Sequence[Any], *, batch: int = 10,

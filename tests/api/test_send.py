@@ -81,3 +81,57 @@ def test_send_survives_a_server_crash_without_losing_or_doubling_a_packet(
         assert info["position"] == position_json(offline.last_position, sample_graph.frame)
     finally:
         second.stop()
+
+
+def test_send_needs_no_httpx(server: Server, sample_db: Path, tmp_path: Path) -> None:
+    """`navsvc send` runs on the runtime dependencies alone (it crashed with
+    ModuleNotFoundError: httpx in an install without the test extras)."""
+    import subprocess
+    import sys
+
+    drive = tmp_path / "drive.jsonl"
+    assert main(["simulate", "--map", str(sample_db), "-o", str(drive), "--seed", "3",
+                 "--duration", "10", "--sensors", "gyro_odometer"]) == 0
+    code = ("import sys\nsys.modules['httpx'] = None  # import httpx now raises\n"
+            "from navsvc.cli import main\n"
+            f"sys.exit(main(['send', {str(drive)!r}, '--url', {server.url!r}, '--json', "
+            "'--quiet']))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["rejected"] == 0 and summary["accepted"] == summary["packets"] > 1000
+
+
+def test_send_lists_refused_packets_by_line_and_closes_the_session(
+        server: Server, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    drive = tmp_path / "d.jsonl"
+    drive.write_text('{"t": 0, "kind": "gps", "lat": 43.7398, "lon": 7.4218}\n'
+                     'not json\n'
+                     '{"t": 1, "kind": "gps", "lat": 91, "lon": 7.4218}\n'
+                     '{"t": 2, "kind": "gps", "lat": 43.7399, "lon": 7.4219}\n')
+    assert main(["send", str(drive), "--url", server.url, "--quiet"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].endswith(": 2 of 3 packets accepted, 1 rejected, 1 unreadable lines, "
+                           "0 positions; session closed")
+    assert out[1:] == [
+        f"  {drive}:2: malformed: not JSON (Expecting value at column 1)",
+        f"  {drive}:3: out_of_range: a value is out of range: lat=91 (must be <= 90.0)"]
+    session_id = out[0].split()[1].rstrip(":")
+    assert server.client().get(f"/sessions/{session_id}").status_code == 404  # closed
+    assert main(["send", str(drive), "--url", server.url, "--quiet", "--keep", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["closed"] is False and summary["rejections"] == [
+        {"line": 2, "code": "malformed", "message": "not JSON (Expecting value at column 1)"},
+        {"line": 3, "code": "out_of_range",
+         "message": "a value is out of range: lat=91 (must be <= 90.0)"}]
+    assert server.client().get(f"/sessions/{summary['session_id']}").status_code == 200
+
+
+@pytest.mark.parametrize("batch", ["0", "1001", "ten"])
+def test_send_refuses_a_bad_batch_size(batch: str, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["send", str(tmp_path / "d.jsonl"), "--batch", batch])
+    assert exit_.value.code == 2
+    assert "argument --batch" in capsys.readouterr().err

@@ -167,3 +167,24 @@ def test_strapdown_session_takes_6_axis_imu(client: httpx.Client) -> None:
     r = client.post("/sessions", json={"vehicle_id": "x", "sensors": "strapdown",
                                        "map_feedback": True})
     assert r.status_code == 422 and "map feedback" in r.json()["error"]["message"]
+
+
+@pytest.mark.parametrize("path", ["/v1", "/v1/"])
+def test_the_api_root_says_where_to_go(server: Server, path: str) -> None:
+    """`make run` prints the server's address; /v1 and /v1/ answered 404."""
+    r = httpx.get(server.url + path, timeout=10.0)
+    assert r.status_code == 200
+    body = r.json()
+    assert body["service"] == "navsvc" and body["map"] == "monaco"
+    assert body["links"]["map_view"] == "/" and body["links"]["docs"] == "/docs"
+
+
+def test_unknown_routes_and_methods_say_what_is_wrong(server: Server) -> None:
+    r = httpx.get(server.url + "/v2/sessions", timeout=10.0)
+    assert r.status_code == 404 and r.json() == {"error": {
+        "code": "not_found", "message": "no route GET /v2/sessions: the API is under /v1 "
+                                        "(see /docs), the map view at /"}}
+    r = httpx.put(server.url + "/v1/sessions", timeout=10.0)
+    assert r.status_code == 405 and r.headers["allow"] == "GET, POST"
+    assert r.json() == {"error": {"code": "method_not_allowed", "message":
+                                  "PUT is not allowed on /v1/sessions (allowed: GET, POST)"}}

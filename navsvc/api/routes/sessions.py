@@ -45,6 +45,7 @@ def ingest(state: AppState, session: LiveSession, packets: list[Any],
         for r in done.result.rejections:
             m.packets_rejected.labels(r.reason.code).inc()
         m.positions.inc(len(done.result.positions))
+        state.viewers.publish(session.id, done.result.records, done.reply)
     return done.reply
 
 
@@ -72,6 +73,7 @@ async def get_session(session_id: str, state: StateDep, owner: OwnerDep) -> Sess
 async def delete_session(session_id: str, state: StateDep, owner: OwnerDep) -> Response:
     """End a session and drop its trip log."""
     state.store.delete(session_id, owner)
+    state.viewers.end(session_id)
     state.metrics.sessions.set(len(state.store))
     return Response(status_code=204)
 

@@ -1,0 +1,74 @@
+"""Every runtime import of navsvc and roadgraph is installed by the project's runtime
+dependencies (pyproject's [project] dependencies and what they require), not only by an
+extra: `navsvc send` once crashed with ModuleNotFoundError: httpx in any install without the
+test extras, the Docker image included. Checked on the source, offline."""
+
+from __future__ import annotations
+
+import ast
+import re
+import sys
+import tomllib
+from importlib.metadata import PackageNotFoundError, packages_distributions, requires
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+OWN = {"navsvc", "roadgraph"}
+
+
+def _name(requirement: str) -> str:
+    match = re.match(r"[A-Za-z0-9_.-]+", requirement)
+    assert match, requirement
+    return re.sub(r"[-_.]+", "-", match.group(0)).lower()
+
+
+def runtime_distributions() -> set[str]:
+    """The declared runtime dependencies and, transitively, what they require (extras
+    aside)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    todo = [_name(r) for r in project["dependencies"]]
+    seen: set[str] = set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        try:
+            needs = requires(name) or []
+        except PackageNotFoundError:
+            continue
+        todo += [_name(r) for r in needs if "extra" not in r.partition(";")[2]]
+    return seen
+
+
+def runtime_imports() -> dict[str, str]:
+    """Top-level third-party modules imported by the packages' source → a file importing it."""
+    found: dict[str, str] = {}
+    for package in OWN:
+        for path in (ROOT / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module] if isinstance(node, ast.ImportFrom) and node.module and \
+                    node.level == 0 else []
+                for name in names:
+                    top = name.split(".")[0]
+                    if top not in sys.stdlib_module_names and top not in OWN:
+                        found.setdefault(top, str(path.relative_to(ROOT)))
+    return found
+
+
+def test_every_runtime_import_comes_with_the_runtime_dependencies() -> None:
+    installed = runtime_distributions()
+    providers = packages_distributions()
+    missing = {}
+    for module, where in runtime_imports().items():
+        dists = {_name(d) for d in providers.get(module, [module])}
+        if not dists & installed:
+            missing[module] = where
+    assert not missing, f"imported but not a runtime dependency: {missing}"
+
+
+def test_the_check_sees_the_imports_it_should() -> None:
+    imports = runtime_imports()
+    assert {"numpy", "fastapi", "websockets", "fastapi_offline"} <= set(imports)
+    assert "httpx" not in imports  # the test extra's client stays out of the package
