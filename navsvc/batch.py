@@ -79,7 +79,7 @@ class DaskExecutor(Executor):
         self._cluster = None
         if scheduler is not None:
             try:
-                self._client = Client(scheduler, timeout="10s")
+                self._client = Client(scheduler, timeout="10s")  # type: ignore[no-untyped-call]
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {exc}"
                                   ) from None
@@ -88,13 +88,13 @@ class DaskExecutor(Executor):
             n = workers or os.cpu_count() or 1
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                          host="127.0.0.1", dashboard_address=None,
-                                         silence_logs=40)
-            self._client = Client(self._cluster)
+                                         silence_logs=40)  # type: ignore[no-untyped-call]
+            self._client = Client(self._cluster)  # type: ignore[no-untyped-call]
             self.where = f"on a local Dask cluster of {n} processes"
         self.workers = max(len(self._client.scheduler_info().get("workers", {})), 1)
 
     def share(self, value: Any) -> Any:
-        return self._client.scatter(value, broadcast=True, hash=False)
+        return self._client.scatter(value, broadcast=True, hash=False)  # type: ignore[no-untyped-call]
 
     def run(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]
             ) -> Iterator[tuple[int, Any]]:
@@ -102,11 +102,11 @@ class DaskExecutor(Executor):
 
         futures = [self._client.submit(fn, *args, pure=False) for args in tasks]
         index = {f.key: i for i, f in enumerate(futures)}
-        for future in as_completed(futures):
+        for future in as_completed(futures):  # type: ignore[no-untyped-call]
             yield index[future.key], future.result()
 
     def close(self) -> None:
-        self._client.close()
+        self._client.close()  # type: ignore[no-untyped-call]
         if self._cluster is not None:
             self._cluster.close()
 

@@ -149,6 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--triplog", type=Path, metavar="FILE",
                     help="trip log SQLite file (default: $NAVSVC_TRIPLOG, else DB's stem + "
                     ".trips.db beside DB)")
+    sv.add_argument("--profiles", type=Path, metavar="DIR",
+                    help="a folder of tuned profiles (`navsvc tune`); a session names one by "
+                    "its file stem (default: $NAVSVC_PROFILES)")
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
                         description="Create a session on a running `navsvc serve`, stream the "
@@ -180,8 +183,20 @@ def _add_session_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map-feedback", action="store_true",
                         help="feed confident matches back into the filter as a road "
                         "constraint (bounds drift in GPS outages)")
+    parser.add_argument("--profile", type=Path, metavar="PROFILE.json",
+                        help="tuned parameters for the session (from `navsvc tune`)")
     parser.add_argument("--json", action="store_true", help="print a summary as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _profile_option(args: argparse.Namespace) -> dict[str, Any]:
+    """The session option of ``--profile`` (its parameters inline), or nothing."""
+    if args.profile is None:
+        return {}
+    from navsvc.tuning.profile import read_profile
+
+    return {"profile": {"name": args.profile.stem,
+                        "parameters": read_profile(args.profile)["parameters"]}}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -226,7 +241,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     graph = RoadGraph.open(args.map)
     try:
         config = config_from_options({"sensors": args.sensors, "fusion": args.fusion,
-                                      "map_feedback": args.map_feedback})
+                                      "map_feedback": args.map_feedback,
+                                      **_profile_option(args)})
     except ConfigError as exc:
         print(f"navsvc: error: {exc}", file=sys.stderr)
         return 2
@@ -457,6 +473,8 @@ def _add_tune_parser(sub: Any) -> None:
     tn.add_argument("--seed", type=int, default=0, help="random seed of the GA (default 0)")
     tn.add_argument("--population", type=int, default=10, metavar="N",
                     help="GA population size (default 10)")
+    tn.add_argument("--from", dest="start", type=Path, metavar="PROFILE.json",
+                    help="start from this profile instead of the defaults")
     tn.add_argument("--resume", type=Path, metavar="STATE.json",
                     help="continue the run saved here (started anew when missing)")
     tn.add_argument("-o", "--output", type=Path, metavar="PROFILE.json",
@@ -500,6 +518,10 @@ def _tune(args: argparse.Namespace, params: Any) -> int:
     drives = read_drives(graph, args.drives, args.route)
     options = {"sensors": args.sensors, "fusion": args.fusion,
                "map_feedback": args.map_feedback}
+    if args.start is not None:
+        from navsvc.tuning.profile import read_profile
+
+        options["profile"] = {"parameters": read_profile(args.start)["parameters"]}
     config_from_options(options)  # a refused combination fails before any replay
     fresh = TuneRun.start(args.method, params, args.seed, args.budget,
                           [d.name for d in drives], options, args.population)
@@ -556,7 +578,7 @@ def _cmd_send(args: argparse.Namespace) -> int:
     packets = [line.value for line in lines if line.error is None
                and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
     options = {"vehicle_id": args.vehicle_id, "sensors": args.sensors, "fusion": args.fusion,
-               "map_feedback": args.map_feedback}
+               "map_feedback": args.map_feedback, **_profile_option(args)}
     session_id = create_session(args.url, options, args.api_key)
     with tqdm(total=len(packets), desc="send", unit="pkt", disable=args.quiet,
               leave=False) as bar:
@@ -582,7 +604,9 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from navsvc.api import Settings, create_app
 
     logging.getLogger("navsvc").setLevel(logging.INFO)  # a service says what it does
-    settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog)
+    settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
+                                 profiles_path=args.profiles)
+    log.info("profiles: %s", ", ".join(settings.profiles()) or "none")  # a bad one fails here
     app = create_app(settings)
     # no per-message compression: replies are small, and deflate cost more CPU than it saved
     uvicorn.run(app, host=args.host, port=args.port, ws_ping_interval=20.0,

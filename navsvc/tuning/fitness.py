@@ -60,12 +60,11 @@ def truth_score(e: Evaluation) -> DriveScore:
     road = e.on_right_road_share or 0.0
     ratio = e.fused_to_raw_ratio
     error_term = max(0.0, 1.0 - ratio / 2.0) if np.isfinite(ratio) else 0.0
+    crossings: float | None = None
     if e.intersections_total:
-        crossings: float | None = e.intersections_correct / e.intersections_total
-        score = (WEIGHT_ROAD * road + WEIGHT_INTERSECTIONS * crossings
-                 + WEIGHT_ERROR * error_term)
+        crossings = share = e.intersections_correct / e.intersections_total
+        score = WEIGHT_ROAD * road + WEIGHT_INTERSECTIONS * share + WEIGHT_ERROR * error_term
     else:
-        crossings = None
         score = (WEIGHT_ROAD + WEIGHT_INTERSECTIONS) * road + WEIGHT_ERROR * error_term
     return DriveScore(score, road, crossings, ratio if np.isfinite(ratio) else None)
 

@@ -39,9 +39,11 @@ def current_value(config: SessionConfig, name: str) -> Value:
     return obj  # type: ignore[no-any-return]
 
 
-def defaults(params: Sequence[Parameter], base: SessionConfig = SessionConfig()
+def defaults(params: Sequence[Parameter], base: SessionConfig | None = None
              ) -> dict[str, Value]:
-    return {p.name: current_value(base, p.name) for p in params}
+    """The values of ``params`` in ``base`` (default: the defaults)."""
+    config = base if base is not None else SessionConfig()
+    return {p.name: current_value(config, p.name) for p in params}
 
 
 def changed(values: dict[str, Value], base: dict[str, Value]) -> dict[str, Value]:

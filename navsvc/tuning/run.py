@@ -20,10 +20,10 @@ from typing import Any
 
 from navsvc.batch import Executor, worker_graph
 from navsvc.errors import ConfigError
-from navsvc.session import config_from_options
+from navsvc.session import SessionConfig, config_from_options
 from navsvc.tuning.fitness import DriveScore, mean_fitness
 from navsvc.tuning.params import BY_NAME, Parameter, Value, decode
-from navsvc.tuning.profile import changed, defaults, profile_document
+from navsvc.tuning.profile import changed, current_value, defaults, profile_document
 from navsvc.tuning.replay import TuneDrive, replay
 from navsvc.tuning.search import Search, search_from_json, search_to_json, start_search
 
@@ -176,7 +176,12 @@ def result_profile(run: TuneRun) -> dict[str, Any]:
              "fitness_after": round(fitness, 5), "drives": list(run.drives),
              "scores_before": before["scores"], "scores_after": after["scores"],
              "values": values}
-    return profile_document(changed(values, base), tuned)
+    start = dict(run.options.get("profile", {}).get("parameters", {})) \
+        if isinstance(run.options.get("profile"), dict) else {}
+    merged = {**start, **values}
+    true_defaults = {**defaults(run.params), **{k: current_value(SessionConfig(), k)
+                                               for k in start if k not in values}}
+    return profile_document(changed(merged, true_defaults), tuned)
 
 
 def save_json(path: Path, doc: dict[str, Any]) -> None:
