@@ -165,7 +165,7 @@ def drive_trace(graph: RoadGraph, seed: int, duration_s: float, gps_rate_hz: flo
     return fixes, TraceTruth([r["osm_way_id"] for r in at_fix], ways_at_node)
 
 
-def main() -> None:
+def _parser() -> Any:
     parser = drives_parser(__doc__)
     parser.add_argument("--skip", action="append", default=[],
                         choices=["leuvenmapmatching", "mappymatch", "valhalla"],
@@ -176,31 +176,39 @@ def main() -> None:
                         "python", help="Python of .venv-peers (bench/peers/setup.sh)")
     parser.add_argument("--peers-cache", type=Path, default=None,
                         help="the peers' map data (default bench/.cache/peers/<map stem>)")
-    args = parser.parse_args()
-    for noisy in ("mappymatch", "be.kuleuven.cs.dtai.mapmatching"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
-    graph = RoadGraph.open(args.map)
-    traces = [drive_trace(graph, seed, args.duration, args.gps_rate)
-              for seed in range(1, args.drives + 1)]
+    return parser
+
+
+def _matchers(graph: RoadGraph, skip: list[str]) -> dict[str, tuple[Matcher, float]]:
     builders: dict[str, Callable[[RoadGraph], Matcher]] = {
         "navsvc": navsvc_matcher, "leuvenmapmatching": leuven_matcher,
         "mappymatch": mappymatch_matcher}
     matchers: dict[str, tuple[Matcher, float]] = {}
     for name, build in builders.items():
-        if name not in args.skip:
+        if name not in skip:
             start = time.perf_counter()
             try:
                 matchers[name] = (build(graph), time.perf_counter() - start)
             except ImportError as exc:
                 print(f"{name} skipped: {exc} (pip install -e '.[bench]')")
-    # Interleaved: each trace by each matcher in turn, so that the machine's slow spells fall
-    # on all of them alike and the ratios between them hold.
-    # Valhalla and OSRM run between our rounds (one pass over all traces each), so that a
-    # slow spell of this shared machine falls on both sides of each round's ratio.
+    return matchers
+
+
+Traces = list[tuple[list[TraceFix], TraceTruth]]
+Peers = dict[str, tuple[dict[int, list[tuple[int, ...]]], float]]
+
+
+def _time(args: Any, graph: RoadGraph, traces: Traces, matchers: dict[str, tuple[Matcher, float]]
+          ) -> tuple[dict[tuple[str, int], list[float]],
+                     dict[tuple[str, int], list[tuple[int, ...]]], list[dict[str, float]], Peers]:
+    """Interleaved: each trace by each matcher in turn, so that the machine's slow spells fall
+    on all of them alike and the ratios between them hold. Valhalla and OSRM run between our
+    rounds (one pass over all traces each), so that a slow spell of this shared machine falls
+    on both sides of each round's ratio."""
     times: dict[tuple[str, int], list[float]] = {}
     results: dict[tuple[str, int], list[tuple[int, ...]]] = {}
     rounds: list[dict[str, float]] = []
-    peers: dict[str, tuple[dict[int, list[tuple[int, ...]]], float]] = {}
+    peers: Peers = {}
     for fixes, _ in traces:  # warm up (first calls fill caches) before any timing
         for matcher, _ in matchers.values():
             matcher(fixes)
@@ -216,32 +224,44 @@ def main() -> None:
             rounds.append({"navsvc": sum(t[-1] for (n, _), t in times.items()
                                          if n == "navsvc"),
                            **{name: seconds for name, (_, seconds) in found.items()}})
-    rows: list[dict[str, Any]] = []
-    for name, (_, setup_s) in matchers.items():
-        for seed, (fixes, truth) in enumerate(traces, start=1):
-            matched = results[(name, seed)]
-            elapsed = statistics.median(times[(name, seed)])
-            right = [way in ways for way, ways in zip(truth.way, matched)]
-            right_at_node = [r or bool(node.intersection(ways))
-                             for r, node, ways in zip(right, truth.ways_at_node, matched)]
-            rows.append({"matcher": name, "seed": seed, "points": len(fixes),
-                         "seconds": elapsed, "points_per_s": len(fixes) / elapsed,
-                         "right_road_share": sum(right) / len(fixes),
-                         "right_road_share_node_tolerance": sum(right_at_node) / len(fixes),
-                         "unmatched": sum(not m for m in matched), "setup_s": setup_s})
+    return times, results, rounds, peers
+
+
+def _row(name: str, seed: int, fixes: list[TraceFix], truth: TraceTruth,
+         matched: list[tuple[int, ...]], seconds: float, setup_s: float) -> dict[str, Any]:
+    right = [way in ways for way, ways in zip(truth.way, matched)]
+    right_at_node = [r or bool(node.intersection(ways))
+                     for r, node, ways in zip(right, truth.ways_at_node, matched)]
+    return {"matcher": name, "seed": seed, "points": len(fixes), "seconds": seconds,
+            "points_per_s": math.nan if math.isnan(setup_s) else len(fixes) / seconds,
+            "right_road_share": sum(right) / len(fixes),
+            "right_road_share_node_tolerance": sum(right_at_node) / len(fixes),
+            "unmatched": sum(not m for m in matched), "setup_s": setup_s}
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    for noisy in ("mappymatch", "be.kuleuven.cs.dtai.mapmatching"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+    graph = RoadGraph.open(args.map)
+    traces = [drive_trace(graph, seed, args.duration, args.gps_rate)
+              for seed in range(1, args.drives + 1)]
+    matchers = _matchers(graph, args.skip)
+    times, results, rounds, peers = _time(args, graph, traces, matchers)
+    rows = [_row(name, seed, fixes, truth, results[(name, seed)],
+                 statistics.median(times[(name, seed)]), setup_s)
+            for name, (_, setup_s) in matchers.items()
+            for seed, (fixes, truth) in enumerate(traces, start=1)]
+    total = sum(len(f) for f, _ in traces)
     for name, (outcome, _) in peers.items():
         seconds = statistics.median(r[name] for r in rounds)
-        for seed, (fixes, truth) in enumerate(traces, start=1):
-            matched = outcome[seed]
-            right = [way in ways for way, ways in zip(truth.way, matched)]
-            right_at_node = [r or bool(node.intersection(ways))
-                             for r, node, ways in zip(right, truth.ways_at_node, matched)]
-            share = len(fixes) / sum(len(f) for f, _ in traces)
-            rows.append({"matcher": name, "seed": seed, "points": len(fixes),
-                         "seconds": seconds * share, "points_per_s": math.nan,
-                         "right_road_share": sum(right) / len(fixes),
-                         "right_road_share_node_tolerance": sum(right_at_node) / len(fixes),
-                         "unmatched": sum(not m for m in matched), "setup_s": math.nan})
+        rows += [_row(name, seed, fixes, truth, outcome[seed], seconds * len(fixes) / total,
+                      math.nan) for seed, (fixes, truth) in enumerate(traces, start=1)]
+    _report(args, rows, rounds, list(peers))
+
+
+def _report(args: Any, rows: list[dict[str, Any]], rounds: list[dict[str, float]],
+            peers: list[str]) -> None:
     ours = statistics.median(r["points_per_s"] for r in rows if r["matcher"] == "navsvc")
     ours_all = _all_points_per_s([r for r in rows if r["matcher"] == "navsvc"])
     table = []
@@ -265,7 +285,7 @@ def main() -> None:
         print(f"navsvc against {name}, round by round (its seconds / ours): "
               f"{', '.join(f'{x:.2f}' for x in ratios)}; median {statistics.median(ratios):.2f}")
     write_json("matching_speed", {"drives": args.drives, "duration_s": args.duration,
-                                  "peer_rounds": rounds,
+                                  "gps_rate_hz": args.gps_rate, "peer_rounds": rounds,
                                   "map": args.map.name, "repeats": args.repeats,
                                   "navsvc_points_per_s_all": ours_all,
                                   "navsvc_points_per_s_median": ours, "rows": rows})

@@ -30,6 +30,7 @@ class TuneDrive:
     name: str
     records: tuple[dict[str, Any], ...]
     route: shapely.Geometry | None = None  # in the map's metres
+    map_path: str | None = None  # its own map (bench/tune_eval.py); None: the run's map
 
     @property
     def has_truth(self) -> bool:

@@ -33,7 +33,7 @@ STATE_FORMAT = "navsvc-tune-state/1"
 def score_task(map_path: str, drive: TuneDrive, options: dict[str, Any],
                parameters: dict[str, Value]) -> DriveScore:
     """One replay (a worker's task; the map is opened once per worker)."""
-    return replay(worker_graph(map_path), drive, options, parameters)
+    return replay(worker_graph(drive.map_path or map_path), drive, options, parameters)
 
 
 def _key(values: dict[str, Value]) -> str:
