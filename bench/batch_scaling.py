@@ -29,7 +29,7 @@ import numpy as np
 from generalisation_eval import TUNE_SEEDS, _map_db, harsh_drive
 from report import print_table, write_json
 
-from navsvc.batch import Executor, executor, match_file, worker_graph
+from navsvc.batch import Executor, chunks, executor, match_file, match_files, worker_graph
 from navsvc.matching.hmm import HmmConfig
 from navsvc.sim.simulate import DriveSpec, simulate_drive
 from navsvc.tuning.params import decode, select
@@ -57,10 +57,12 @@ def _evaluations(pool: Executor, db: str, drives: list[TuneDrive],
     return time.perf_counter() - started
 
 
-def _traces(pool: Executor, db: str, tasks: list[tuple[Any, ...]]) -> float:
-    list(pool.run(match_file, tasks[:2]))  # warm-up
+def _traces(pool: Executor, db: str, jobs: list[tuple[str, str]]) -> float:
+    """As ``navsvc match`` sends them: in chunks on Dask, one by one in process."""
+    parts = chunks(jobs, pool.workers if pool.where != "in process" else 1)
+    list(pool.run(match_file, [(db, *jobs[0], HmmConfig())]))  # warm-up
     started = time.perf_counter()
-    list(pool.run(match_file, tasks))
+    list(pool.run(match_files, [(db, part, HmmConfig()) for part in parts]))
     return time.perf_counter() - started
 
 
@@ -75,13 +77,13 @@ def main() -> None:
     sets = [{}] + [decode(params, rng.random(len(params)).tolist())
                    for _ in range(args.sets - 1)]
     folder = Path(tempfile.mkdtemp(prefix="batch_scaling_"))
-    tasks = []
+    tasks: list[tuple[str, str]] = []
     for i in range(args.traces):
         trace = folder / f"trace{i}.jsonl"
         write_records(trace, [r for r in simulate_drive(graph, DriveSpec(
             duration_s=300.0, seed=1000 + i, sensors=("gps",), tunnels_block_gps=False))
             if r["kind"] == "gps"])
-        tasks.append((db, str(trace), str(folder / f"trace{i}.route.json"), HmmConfig()))
+        tasks.append((str(trace), str(folder / f"trace{i}.route.json")))
     rows: list[dict[str, Any]] = []
     for label, workers in (("one process, no Dask", 0), ("Dask, 1 worker", 1),
                            ("Dask, 2 workers", 2)):

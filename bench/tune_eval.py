@@ -11,8 +11,8 @@ table gives the fitness (``navsvc.tuning.fitness``) and its parts, medians over 
 The budget is in parameter sets (each one replay per tune drive); the total replays are
 printed. Runs on a local Dask cluster of ``--workers`` processes (0: in this process).
 
-    python bench/tune_eval.py [--budget 25] [--tune-drives 6] [--report-drives 8]
-        [--duration 120] [--workers 2] [--seed 1]
+    python bench/tune_eval.py [--budget 33] [--tune-drives 6] [--report-drives 10]
+        [--duration 180] [--workers 2] [--seed 1]
 """
 
 from __future__ import annotations
@@ -35,11 +35,12 @@ from navsvc.tuning.run import TuneRun, evaluate_sets, result_profile, tune
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--budget", type=int, default=25, help="parameter sets per method")
+    parser.add_argument("--budget", type=int, default=33,
+                        help="parameter sets per method (33: the GA's start and 4 generations)")
     parser.add_argument("--population", type=int, default=8, help="GA population")
     parser.add_argument("--tune-drives", type=int, default=6)
-    parser.add_argument("--report-drives", type=int, default=8)
-    parser.add_argument("--duration", type=float, default=120.0, help="seconds per drive")
+    parser.add_argument("--report-drives", type=int, default=10)
+    parser.add_argument("--duration", type=float, default=180.0, help="seconds per drive")
     parser.add_argument("--tune-maps", default="monaco,andorra")
     parser.add_argument("--report-maps", default="monaco,andorra,gh-issue-70,stockholm")
     parser.add_argument("--workers", type=int, default=2, help="Dask processes (0: none)")
@@ -48,14 +49,20 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _drives(maps: list[str], seeds: tuple[int, ...], count: int, duration: float,
-            split: str) -> list[TuneDrive]:
-    """``count`` drives, maps in turn, each with the next seed of the split."""
-    out = []
-    for i in range(count):
-        name = maps[i % len(maps)]
-        db = str(_map_db(name))
-        records, _, _ = harsh_drive(worker_graph(db), seeds[i], duration)
-        out.append(TuneDrive(f"{split}:{name}:{seeds[i]}", tuple(records), map_path=db))
+            split: str, skipped: list[str]) -> list[TuneDrive]:
+    """``count`` drives, maps in turn, each with the next seed of the split. A drive without
+    a single GPS fix (UrbanNav's gaps, the outage and tunnels can cover a short drive) scores
+    0 whatever the parameters: it is left out, named in ``skipped``, and the next seed taken."""
+    out: list[TuneDrive] = []
+    seed = iter(seeds)
+    while len(out) < count:
+        name = maps[len(out) % len(maps)]
+        db, s = str(_map_db(name)), next(seed)
+        records, _, _ = harsh_drive(worker_graph(db), s, duration)
+        if not any(r["kind"] == "gps" for r in records):
+            skipped.append(f"{split}:{name}:{s}")
+            continue
+        out.append(TuneDrive(f"{split}:{name}:{s}", tuple(records), map_path=db))
     return out
 
 
@@ -71,9 +78,11 @@ def _parts(rows: list[DriveScore]) -> list[float]:
 def main() -> None:
     args = _parser().parse_args()
     tune_maps, report_maps = args.tune_maps.split(","), args.report_maps.split(",")
-    tune_drives = _drives(tune_maps, TUNE_SEEDS, args.tune_drives, args.duration, "tune")
+    skipped: list[str] = []
+    tune_drives = _drives(tune_maps, TUNE_SEEDS, args.tune_drives, args.duration, "tune",
+                          skipped)
     report_drives = _drives(report_maps, REPORT_SEEDS, args.report_drives, args.duration,
-                            "report")
+                            "report", skipped)
     params = select()
     results: dict[str, Any] = {}
     started = time.perf_counter()
@@ -108,11 +117,13 @@ def main() -> None:
                  "intersections % (median)", "fused/raw RMS (median)"], table)
     for name in ("hill", "ga"):
         print(f"{name}: {results[name]['profile']['parameters']}")
+    print(f"drives without a GPS fix, left out: {', '.join(skipped) or 'none'}")
     print(f"\n{replays} replays in {wall_s:.0f} s ({where})")
     write_json("tune_eval", {"budget": args.budget, "population": args.population,
                              "seed": args.seed, "duration_s": args.duration,
                              "tune_drives": [d.name for d in tune_drives],
                              "report_drives": [d.name for d in report_drives],
+                             "skipped_without_gps": skipped,
                              "replays": replays, "wall_s": round(wall_s, 1),
                              "where": where, "results": results})
 

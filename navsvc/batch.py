@@ -153,11 +153,27 @@ def match_file(map_path: str, trace: str, output: str, config: HmmConfig) -> Tra
         message = str(exc)
         return TraceSummary(trace, error=message if message.startswith(trace)
                             else f"{trace}: {message}", time_s=time.perf_counter() - started)
+    except Exception as exc:  # noqa: BLE001 (a fault of ours on one trace: the batch goes on)
+        return TraceSummary(trace, error=f"{trace}: {type(exc).__name__}: {exc}",
+                            time_s=time.perf_counter() - started)
     points = route["points"]
     matched = sum(1 for p in points if p["matched"] is not None)
     return TraceSummary(trace, output, len(points), matched / len(points) if points else 0.0,
                         len(route["segments"]), route["length_m"],
                         time.perf_counter() - started)
+
+
+def match_files(map_path: str, jobs: Sequence[tuple[str, str]], config: HmmConfig
+                ) -> list[TraceSummary]:
+    """Several traces in one task (``(trace, output)`` each): a trace takes a few ms, a Dask
+    task's round trip about as long, so a batch sends them in chunks."""
+    return [match_file(map_path, trace, output, config) for trace, output in jobs]
+
+
+def chunks(items: Sequence[Any], workers: int, per_worker: int = 4) -> list[list[Any]]:
+    """``items`` in order, in about ``per_worker`` chunks per worker (one each in process)."""
+    size = 1 if workers <= 1 else max(1, -(-len(items) // (workers * per_worker)))
+    return [list(items[i:i + size]) for i in range(0, len(items), size)]
 
 
 def _write(path: Path, text: str) -> None:

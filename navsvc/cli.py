@@ -400,7 +400,7 @@ def _match_one(args: argparse.Namespace, trace: Path) -> int:
 def _match_batch(args: argparse.Namespace, traces: list[Path]) -> int:
     import time
 
-    from navsvc.batch import match_file, output_paths
+    from navsvc.batch import chunks, match_files, output_paths
 
     RoadGraph.open(args.map)  # a wrong map fails here, once
     folder = args.out_dir or Path(".")
@@ -409,15 +409,18 @@ def _match_batch(args: argparse.Namespace, traces: list[Path]) -> int:
     except OSError as exc:
         raise NavsvcError(f"{folder}: cannot create ({exc.strerror})") from None
     config = HmmConfig(sigma_m=args.sigma, beta_m=2.0 * args.sigma)
-    tasks = [(str(args.map.resolve()), str(t), str(o), config)
-             for t, o in zip(traces, output_paths(traces, folder))]
+    jobs = [(str(t), str(o)) for t, o in zip(traces, output_paths(traces, folder))]
     started = time.perf_counter()
-    summaries: list[Any] = [None] * len(tasks)
-    with _executor(args) as pool, tqdm(total=len(tasks), desc="match", unit="trace",
+    summaries: list[Any] = []
+    with _executor(args) as pool, tqdm(total=len(jobs), desc="match", unit="trace",
                                        disable=args.quiet, leave=False) as bar:
-        for i, summary in pool.run(match_file, tasks):
-            summaries[i] = summary
-            bar.update(1)
+        parts = chunks(jobs, pool.workers if pool.where != "in process" else 1)
+        done: list[Any] = [None] * len(parts)
+        tasks = [(str(args.map.resolve()), part, config) for part in parts]
+        for i, found in pool.run(match_files, tasks):
+            done[i] = found
+            bar.update(len(found))
+        summaries = [s for part in done for s in part]
         where, workers = pool.where, pool.workers
     wall_s = time.perf_counter() - started
     ok = [s for s in summaries if s.error is None]

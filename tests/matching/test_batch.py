@@ -101,3 +101,12 @@ def test_repeated_stems_get_distinct_route_files(tmp_path: Path) -> None:
     names = [Path("a/x.gpx"), Path("b/x.gpx"), Path("b/y.csv")]
     assert [p.name for p in output_paths(names, tmp_path)] == [
         "x.route.json", "x-2.route.json", "y.route.json"]
+
+
+def test_chunks_keep_order_and_size() -> None:
+    from navsvc.batch import chunks
+
+    assert chunks(list(range(10)), 2) == [[0, 1], [2, 3], [4, 5], [6, 7], [8, 9]]
+    assert chunks(list(range(3)), 1) == [[0], [1], [2]]
+    assert chunks(list(range(3)), 8) == [[0], [1], [2]]
+    assert chunks([], 2) == []
