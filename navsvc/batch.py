@@ -70,6 +70,7 @@ class DaskExecutor(Executor):
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None) -> None:
         try:
+            import dask
             from distributed import Client, LocalCluster
         except ImportError:
             raise ConfigError("Dask distributed is not installed: pip install "
@@ -86,8 +87,13 @@ class DaskExecutor(Executor):
             self.where = f"on the Dask cluster at {scheduler}"
         else:
             n = workers or os.cpu_count() or 1
+            # every port on loopback; the scheduler's HTTP server (health, metrics) on a free
+            # port (with None it still took 8787, and a second cluster warned of the clash)
+            # the workers' statistical profiler samples every 10 ms and holds the GIL: a
+            # replay took 1.35x as long on one worker as in this process; without it, the same
+            dask.config.set({"distributed.worker.profile.enabled": False})
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                         host="127.0.0.1", dashboard_address=None,
+                                         host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                          silence_logs=40)  # type: ignore[no-untyped-call]
             self._client = Client(self._cluster)  # type: ignore[no-untyped-call]
             self.where = f"on a local Dask cluster of {n} processes"
