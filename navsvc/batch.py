@@ -33,6 +33,8 @@ from navsvc.errors import ConfigError, NavsvcError
 from navsvc.matching.hmm import HmmConfig
 from roadgraph import RoadGraph, RoadGraphError
 
+SCHEDULER_TIMEOUT_S = 10.0  # to connect to a cluster named by --scheduler
+
 
 @lru_cache(maxsize=4)
 def worker_graph(path: str) -> RoadGraph:
@@ -54,6 +56,10 @@ class Executor:
             ) -> Iterator[tuple[int, Any]]:
         for i, args in enumerate(tasks):
             yield i, fn(*args)
+
+    def warm_up(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` once in every worker process (here: once in this one)."""
+        fn(*args)
 
     def close(self) -> None:
         """Stop what this executor started (a local cluster)."""
@@ -80,7 +86,7 @@ class DaskExecutor(Executor):
         self._cluster = None
         if scheduler is not None:
             try:
-                self._client = Client(scheduler, timeout="10s")  # type: ignore[no-untyped-call]
+                self._client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)  # type: ignore[no-untyped-call]
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {exc}"
                                   ) from None
@@ -111,6 +117,9 @@ class DaskExecutor(Executor):
         for future in as_completed(futures):  # type: ignore[no-untyped-call]
             yield index[future.key], future.result()
 
+    def warm_up(self, fn: Callable[..., Any], *args: Any) -> None:
+        self._client.run(fn, *args)
+
     def close(self) -> None:
         self._client.close()  # type: ignore[no-untyped-call]
         if self._cluster is not None:
@@ -125,6 +134,15 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Execut
     if workers is not None and workers < 0:
         raise ConfigError(f"--workers must be >= 0, got {workers}")
     return DaskExecutor(workers, scheduler)
+
+
+def open_map(path: str) -> None:
+    """Open the map in this process, and import the matcher and the tuning replay (a
+    worker's warm-up: its first task then costs what the others do)."""
+    import navsvc.tuning.replay  # noqa: F401
+    import navsvc.wire.route  # noqa: F401
+
+    worker_graph(path)
 
 
 # --- batch matching -----------------------------------------------------------------------

@@ -400,7 +400,7 @@ def _match_one(args: argparse.Namespace, trace: Path) -> int:
 def _match_batch(args: argparse.Namespace, traces: list[Path]) -> int:
     import time
 
-    from navsvc.batch import chunks, match_files, output_paths
+    from navsvc.batch import chunks, match_files, open_map, output_paths
 
     RoadGraph.open(args.map)  # a wrong map fails here, once
     folder = args.out_dir or Path(".")
@@ -414,6 +414,7 @@ def _match_batch(args: argparse.Namespace, traces: list[Path]) -> int:
     summaries: list[Any] = []
     with _executor(args) as pool, tqdm(total=len(jobs), desc="match", unit="trace",
                                        disable=args.quiet, leave=False) as bar:
+        pool.warm_up(open_map, str(args.map.resolve()))
         parts = chunks(jobs, pool.workers if pool.where != "in process" else 1)
         done: list[Any] = [None] * len(parts)
         tasks = [(str(args.map.resolve()), part, config) for part in parts]
@@ -514,6 +515,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 
 def _tune(args: argparse.Namespace, params: Any) -> int:
+    from navsvc.batch import open_map
     from navsvc.tuning.inputs import read_drives
     from navsvc.tuning.run import TuneRun, result_profile, save_json, tune
 
@@ -548,6 +550,7 @@ def _tune(args: argparse.Namespace, params: Any) -> int:
             if best is not None:
                 bar.set_postfix(best=f"{best:.4f}")
 
+        pool.warm_up(open_map, str(args.map.resolve()))
         tune(run, pool, str(args.map.resolve()), drives,
              save=lambda r: save_json(state_path, r.to_json()), progress=progress)
         where = pool.where

@@ -110,3 +110,26 @@ def test_chunks_keep_order_and_size() -> None:
     assert chunks(list(range(3)), 1) == [[0], [1], [2]]
     assert chunks(list(range(3)), 8) == [[0], [1], [2]]
     assert chunks([], 2) == []
+
+
+def test_scheduler_joins_an_existing_cluster(traces: Path, sample_db: Path, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str],
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """--scheduler ADDRESS sends the same work to a cluster someone else started."""
+    from distributed import LocalCluster
+
+    import navsvc.batch
+    monkeypatch.setattr(navsvc.batch, "SCHEDULER_TIMEOUT_S", 1.0)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address="127.0.0.1:0") as cluster:
+        code, summary, _ = batch([str(traces / "drive1.jsonl"), "--map", str(sample_db),
+                                  "--out-dir", str(tmp_path), "--scheduler",
+                                  cluster.scheduler_address], capsys)
+        assert len(cluster.scheduler_info["workers"]) == 1  # left running for its owner
+    assert code == 0 and summary["total"]["where"] == \
+        f"on the Dask cluster at {cluster.scheduler_address}"
+    assert (tmp_path / "drive1.route.json").exists()
+    assert main(["match", str(traces), "--map", str(sample_db), "--scheduler",
+                 "tcp://127.0.0.1:1"]) == 1
+    assert "navsvc: error: cannot reach the Dask scheduler at tcp://127.0.0.1:1" in \
+        capsys.readouterr().err
