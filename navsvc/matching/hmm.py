@@ -148,26 +148,22 @@ class HmmMatcher:
         c = self.config
         straight = math.dist(prev, point)
         limit = c.max_route_factor * straight + 500.0
-        inv_beta = 1.0 / c.beta_m
         best = [-math.inf] * len(cands)
         back = [-1] * len(cands)
-        # the candidates' fields read once (attribute access dominated this loop)
-        targets = [(j, p.edge, p.edge.u, p.offset_m) for j, p in enumerate(cands)]
         for k, (q, score, _) in enumerate(layer):
             if score == -math.inf:
                 continue
             reach = self._reach(q.edge.v, limit, cache)
-            q_edge, q_offset = q.edge, q.offset_m - 1e-6
             remaining = q.remaining_m
-            for j, edge, u, offset in targets:
-                if edge == q_edge and offset >= q_offset:
-                    route = offset - q.offset_m
+            for j, p in enumerate(cands):
+                if p.edge == q.edge and p.offset_m >= q.offset_m - 1e-6:
+                    route = p.offset_m - q.offset_m
                 else:
-                    between = reach.get(u)
+                    between = reach.get(p.edge.u)
                     if between is None or between > limit:
                         continue
-                    route = remaining + between + offset
-                s = score - abs(route - straight) * inv_beta
+                    route = remaining + between + p.offset_m
+                s = score - abs(route - straight) / c.beta_m
                 if s > best[j]:
                     best[j], back[j] = s, k
         return [(p, b + e if k >= 0 else -math.inf, k)
