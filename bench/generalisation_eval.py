@@ -138,15 +138,23 @@ def _profile(spec: DriveSpec) -> dict[str, Any]:
             "gyro_scale_error": e.gyro_scale_error, "odometer_scale": e.odometer_scale}
 
 
-def _one_drive(job: tuple[str, int, float, bool, dict[str, float]]) -> list[dict[str, Any]]:
-    map_name, seed, duration, all_configs, overrides = job
-    graph = RoadGraph.open(_map_db(map_name))
+def harsh_drive(graph: RoadGraph, seed: int, duration: float
+                ) -> tuple[list[dict[str, Any]], DriveSpec, float]:
+    """One drive of this bench: its records, its spec and the start of its outage (also the
+    drives of bench/tune_eval.py)."""
     urbannav = seed % URBANNAV_EVERY == 0
     outage_start = max(duration / 2.0 - OUTAGE_LENGTH_S / 2.0, 0.0)
     spec = harsh_urban_spec(DriveSpec(
         duration_s=duration, seed=seed, outages=((outage_start, OUTAGE_LENGTH_S),),
         full_imu=True, gps_error_replay=_urbannav() if urbannav else None))
-    drive = simulate_drive(graph, spec)
+    return simulate_drive(graph, spec), spec, outage_start
+
+
+def _one_drive(job: tuple[str, int, float, bool, dict[str, float]]) -> list[dict[str, Any]]:
+    map_name, seed, duration, all_configs, overrides = job
+    graph = RoadGraph.open(_map_db(map_name))
+    urbannav = seed % URBANNAV_EVERY == 0
+    drive, spec, outage_start = harsh_drive(graph, seed, duration)
     rows = []
     for sensors, mode in _configs(all_configs):
         started = time.perf_counter()

@@ -16,28 +16,35 @@ machine is noisy).
 - mappymatch: ``LCSSMatcher`` on an ``NxMap`` made by its own ``parse_osmnx_graph`` from our
   edges (same geometry, no component filtering).
 
+- Valhalla Meili (``pyvalhalla``, in process in ``.venv-peers``, run by
+  ``bench/peer_match.py`` as ``bench/matching_eval.py`` runs it; ``bash bench/peers/setup.sh``
+  builds the venv and the tiles of the same OSM file): ``trace_attributes`` with
+  ``gps_accuracy`` the simulator's true GPS sigma, each trace ``--repeats`` times. Its time is
+  the peer's own in-process matching time (parsing its answer included), so its points per
+  second are over all traces together; ours are given both ways. OSRM comes in the same run
+  and is shown too.
+
     pip install -e '.[bench]'
     python bench/matching_speed.py [--map maps/monaco.db] [--drives 10] [--duration 600]
-        [--repeats 3] [--skip leuvenmapmatching]
+        [--repeats 3] [--skip leuvenmapmatching] [--peers-python .venv-peers/bin/python]
+        [--peers-cache bench/.cache/peers/monaco]
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import statistics
+import subprocess
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import networkx as nx
 import numpy as np
-import pandas as pd
-from leuvenmapmatching.map.inmem import InMemMap
-from leuvenmapmatching.matcher.distance import DistanceMatcher
-from mappymatch.constructs.trace import Trace
-from mappymatch.maps.nx.nx_map import NxMap
-from mappymatch.maps.nx.readers.osm_readers import NetworkType, parse_osmnx_graph
-from mappymatch.matchers.lcss.lcss import LCSSMatcher
 from report import drives_parser, print_table, write_json
 from shapely.geometry import LineString
 from tqdm import tqdm
@@ -49,6 +56,8 @@ from navsvc.wire.traces import TraceFix
 from roadgraph import EdgeKey, RoadGraph
 
 SIGMA_M = 10.0
+ROOT = Path(__file__).resolve().parent.parent
+TRUE_GPS_SIGMA_M = 4.123105625617661  # the simulator's default fixes (bench/matching_eval.py)
 # A matcher: fixes -> the OSM way ids of the edge each fix was matched to (empty: unmatched).
 Matcher = Callable[[list[TraceFix]], list[tuple[int, ...]]]
 
@@ -63,6 +72,9 @@ def navsvc_matcher(graph: RoadGraph) -> Matcher:
 
 def leuven_matcher(graph: RoadGraph) -> Matcher:
     """Each edge's polyline as a chain of leuven nodes; leuven edges labelled with our edge."""
+    from leuvenmapmatching.map.inmem import InMemMap
+    from leuvenmapmatching.matcher.distance import DistanceMatcher
+
     leuven = InMemMap("roads", use_latlon=False, use_rtree=True, index_edges=True)
     label: dict[tuple[int, int], EdgeKey] = {}
     next_id = max(n.id for n in graph.nodes) + 1
@@ -98,6 +110,12 @@ def leuven_matcher(graph: RoadGraph) -> Matcher:
 
 
 def mappymatch_matcher(graph: RoadGraph) -> Matcher:
+    import pandas as pd
+    from mappymatch.constructs.trace import Trace
+    from mappymatch.maps.nx.nx_map import NxMap
+    from mappymatch.maps.nx.readers.osm_readers import NetworkType, parse_osmnx_graph
+    from mappymatch.matchers.lcss.lcss import LCSSMatcher
+
     g = nx.MultiDiGraph(crs="epsg:4326")
     for node in graph.nodes:
         g.add_node(node.id, x=node.lon_deg, y=node.lat_deg)
@@ -126,11 +144,11 @@ class TraceTruth(NamedTuple):
     ways_at_node: list[frozenset[int]]  # within NODE_TOLERANCE_M of an intersection: its ways
 
 
-def drive_trace(graph: RoadGraph, seed: int, duration_s: float) -> tuple[list[TraceFix],
-                                                                          TraceTruth]:
+def drive_trace(graph: RoadGraph, seed: int, duration_s: float, gps_rate_hz: float = 1.0
+                ) -> tuple[list[TraceFix], TraceTruth]:
     """The GPS fixes of one simulated drive, and the truth at each."""
     drive = simulate_drive(graph, DriveSpec(duration_s=duration_s, seed=seed,
-                                            tunnels_block_gps=False))
+                                            tunnels_block_gps=False, gps_rate_hz=gps_rate_hz))
     truth = {round(r["t"], 1): r for r in drive if r["kind"] == "truth"}
     fixes = [TraceFix(r["t"], r["lat"], r["lon"]) for r in drive if r["kind"] == "gps"]
     at_fix = [truth[round(f.t, 1)] for f in fixes]
@@ -147,64 +165,164 @@ def drive_trace(graph: RoadGraph, seed: int, duration_s: float) -> tuple[list[Tr
     return fixes, TraceTruth([r["osm_way_id"] for r in at_fix], ways_at_node)
 
 
-def main() -> None:
+def _parser() -> Any:
     parser = drives_parser(__doc__)
     parser.add_argument("--skip", action="append", default=[],
-                        choices=["leuvenmapmatching", "mappymatch"], help="leave a peer out")
+                        choices=["leuvenmapmatching", "mappymatch", "valhalla"],
+                        help="leave a peer out (valhalla: Valhalla and OSRM)")
     parser.add_argument("--repeats", type=int, default=3, help="timings per trace (median)")
-    args = parser.parse_args()
-    for noisy in ("mappymatch", "be.kuleuven.cs.dtai.mapmatching"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
-    graph = RoadGraph.open(args.map)
-    traces = [drive_trace(graph, seed, args.duration) for seed in range(1, args.drives + 1)]
+    parser.add_argument("--gps-rate", type=float, default=1.0, help="fixes per second")
+    parser.add_argument("--peers-python", type=Path, default=ROOT / ".venv-peers" / "bin" /
+                        "python", help="Python of .venv-peers (bench/peers/setup.sh)")
+    parser.add_argument("--peers-cache", type=Path, default=None,
+                        help="the peers' map data (default bench/.cache/peers/<map stem>)")
+    return parser
+
+
+def _matchers(graph: RoadGraph, skip: list[str]) -> dict[str, tuple[Matcher, float]]:
     builders: dict[str, Callable[[RoadGraph], Matcher]] = {
         "navsvc": navsvc_matcher, "leuvenmapmatching": leuven_matcher,
         "mappymatch": mappymatch_matcher}
     matchers: dict[str, tuple[Matcher, float]] = {}
     for name, build in builders.items():
-        if name not in args.skip:
+        if name not in skip:
             start = time.perf_counter()
-            matchers[name] = (build(graph), time.perf_counter() - start)
-    # Interleaved: each trace by each matcher in turn, so that the machine's slow spells fall
-    # on all of them alike and the ratios between them hold.
+            try:
+                matchers[name] = (build(graph), time.perf_counter() - start)
+            except ImportError as exc:
+                print(f"{name} skipped: {exc} (pip install -e '.[bench]')")
+    return matchers
+
+
+Traces = list[tuple[list[TraceFix], TraceTruth]]
+Peers = dict[str, tuple[dict[int, list[tuple[int, ...]]], float]]
+
+
+def _time(args: Any, graph: RoadGraph, traces: Traces, matchers: dict[str, tuple[Matcher, float]]
+          ) -> tuple[dict[tuple[str, int], list[float]],
+                     dict[tuple[str, int], list[tuple[int, ...]]], list[dict[str, float]], Peers]:
+    """Interleaved: each trace by each matcher in turn, so that the machine's slow spells fall
+    on all of them alike and the ratios between them hold. Valhalla and OSRM run between our
+    rounds (one pass over all traces each), so that a slow spell of this shared machine falls
+    on both sides of each round's ratio."""
     times: dict[tuple[str, int], list[float]] = {}
     results: dict[tuple[str, int], list[tuple[int, ...]]] = {}
-    for seed, (fixes, _) in enumerate(tqdm(traces, desc="traces"), start=1):
-        for _ in range(args.repeats):
+    rounds: list[dict[str, float]] = []
+    peers: Peers = {}
+    for fixes, _ in traces:  # warm up (first calls fill caches) before any timing
+        for matcher, _ in matchers.values():
+            matcher(fixes)
+    for _ in tqdm(range(args.repeats), desc="rounds"):
+        for seed, (fixes, _) in enumerate(traces, start=1):
             for name, (matcher, _) in matchers.items():
                 start = time.perf_counter()
                 results[(name, seed)] = matcher(fixes)
                 times.setdefault((name, seed), []).append(time.perf_counter() - start)
-    rows: list[dict[str, Any]] = []
-    for name, (_, setup_s) in matchers.items():
-        for seed, (fixes, truth) in enumerate(traces, start=1):
-            matched = results[(name, seed)]
-            elapsed = statistics.median(times[(name, seed)])
-            right = [way in ways for way, ways in zip(truth.way, matched)]
-            right_at_node = [r or bool(node.intersection(ways))
-                             for r, node, ways in zip(right, truth.ways_at_node, matched)]
-            rows.append({"matcher": name, "seed": seed, "points": len(fixes),
-                         "seconds": elapsed, "points_per_s": len(fixes) / elapsed,
-                         "right_road_share": sum(right) / len(fixes),
-                         "right_road_share_node_tolerance": sum(right_at_node) / len(fixes),
-                         "unmatched": sum(not m for m in matched), "setup_s": setup_s})
+        found = {} if "valhalla" in args.skip else _peers(args, graph, traces)
+        if found:
+            peers = found
+            rounds.append({"navsvc": sum(t[-1] for (n, _), t in times.items()
+                                         if n == "navsvc"),
+                           **{name: seconds for name, (_, seconds) in found.items()}})
+    return times, results, rounds, peers
+
+
+def _row(name: str, seed: int, fixes: list[TraceFix], truth: TraceTruth,
+         matched: list[tuple[int, ...]], seconds: float, setup_s: float) -> dict[str, Any]:
+    right = [way in ways for way, ways in zip(truth.way, matched)]
+    right_at_node = [r or bool(node.intersection(ways))
+                     for r, node, ways in zip(right, truth.ways_at_node, matched)]
+    return {"matcher": name, "seed": seed, "points": len(fixes), "seconds": seconds,
+            "points_per_s": math.nan if math.isnan(setup_s) else len(fixes) / seconds,
+            "right_road_share": sum(right) / len(fixes),
+            "right_road_share_node_tolerance": sum(right_at_node) / len(fixes),
+            "unmatched": sum(not m for m in matched), "setup_s": setup_s}
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    for noisy in ("mappymatch", "be.kuleuven.cs.dtai.mapmatching"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+    graph = RoadGraph.open(args.map)
+    traces = [drive_trace(graph, seed, args.duration, args.gps_rate)
+              for seed in range(1, args.drives + 1)]
+    matchers = _matchers(graph, args.skip)
+    times, results, rounds, peers = _time(args, graph, traces, matchers)
+    rows = [_row(name, seed, fixes, truth, results[(name, seed)],
+                 statistics.median(times[(name, seed)]), setup_s)
+            for name, (_, setup_s) in matchers.items()
+            for seed, (fixes, truth) in enumerate(traces, start=1)]
+    total = sum(len(f) for f, _ in traces)
+    for name, (outcome, _) in peers.items():
+        seconds = statistics.median(r[name] for r in rounds)
+        rows += [_row(name, seed, fixes, truth, outcome[seed], seconds * len(fixes) / total,
+                      math.nan) for seed, (fixes, truth) in enumerate(traces, start=1)]
+    _report(args, rows, rounds, list(peers))
+
+
+def _report(args: Any, rows: list[dict[str, Any]], rounds: list[dict[str, float]],
+            peers: list[str]) -> None:
     ours = statistics.median(r["points_per_s"] for r in rows if r["matcher"] == "navsvc")
+    ours_all = _all_points_per_s([r for r in rows if r["matcher"] == "navsvc"])
     table = []
     for name in dict.fromkeys(r["matcher"] for r in rows):
         g = [r for r in rows if r["matcher"] == name]
         pps = statistics.median(r["points_per_s"] for r in g)
-        table.append([name, sum(r["points"] for r in g), pps, ours / pps,
+        everything = _all_points_per_s(g)
+        table.append([name, sum(r["points"] for r in g), pps, everything, ours_all / everything,
                       100.0 * statistics.median(r["right_road_share"] for r in g),
                       100.0 * statistics.median(r["right_road_share_node_tolerance"] for r in g),
                       100.0 * min(r["right_road_share_node_tolerance"] for r in g),
                       g[0]["setup_s"]])
     print_table(f"Offline matching, {args.drives} simulated drives x {args.duration:.0f} s "
-                f"(1 Hz GPS), {args.map.name}",
-                ["matcher", "points", "points/s (median)", "navsvc speed-up",
+                f"({args.gps_rate:g} Hz GPS), {args.map.name}",
+                ["matcher", "points", "points/s (median)", "points/s (all)",
+                 "navsvc speed-up (all)",
                  "right road % (median)", "same, 5 m at junctions (median)", "(worst)",
                  "map setup s"], table)
+    for name in peers:
+        ratios = [r[name] / r["navsvc"] for r in rounds]
+        print(f"navsvc against {name}, round by round (its seconds / ours): "
+              f"{', '.join(f'{x:.2f}' for x in ratios)}; median {statistics.median(ratios):.2f}")
     write_json("matching_speed", {"drives": args.drives, "duration_s": args.duration,
-                                  "rows": rows})
+                                  "gps_rate_hz": args.gps_rate, "peer_rounds": rounds,
+                                  "map": args.map.name, "repeats": args.repeats,
+                                  "navsvc_points_per_s_all": ours_all,
+                                  "navsvc_points_per_s_median": ours, "rows": rows})
+
+
+def _all_points_per_s(rows: list[dict[str, Any]]) -> float:
+    """Points over seconds, summed over every trace."""
+    return sum(r["points"] for r in rows) / sum(r["seconds"] for r in rows)
+
+
+def _peers(args: Any, graph: RoadGraph, traces: list[tuple[list[TraceFix], TraceTruth]]
+           ) -> dict[str, tuple[dict[int, list[tuple[int, ...]]], float]]:
+    """Valhalla Meili and OSRM on the same traces, one pass, through bench/peer_match.py in
+    .venv-peers: each one's matched ways per seed, and its matching seconds."""
+    cache = args.peers_cache or ROOT / "bench" / ".cache" / "peers" / args.map.stem
+    if not args.peers_python.exists() or not (cache / "source.sha256").exists():
+        print(f"peers skipped: no {args.peers_python} or {cache} (bash bench/peers/setup.sh)")
+        return {}
+    if (cache / "source.sha256").read_text().strip() != graph.info.source_sha256:
+        print(f"peers skipped: {cache} was built from another OSM file than {args.map}")
+        return {}
+    fixes = {str(seed): [{"t": f.t, "lat": f.lat_deg, "lon": f.lon_deg,
+                          "sigma_m": TRUE_GPS_SIGMA_M} for f in trace]
+             for seed, (trace, _) in enumerate(traces, start=1)}
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = Path(tmp) / "traces.json", Path(tmp) / "matched.json"
+        src.write_text(json.dumps({"traces": fixes}))
+        subprocess.run([str(args.peers_python), str(ROOT / "bench" / "peer_match.py"),
+                        str(cache), str(src), str(dst)], check=True)
+        found = json.loads(dst.read_text())
+    meta = found.pop("meta")
+    out = {}
+    for name, key in (("valhalla meili", "valhalla"), ("osrm", "osrm")):
+        ways = {int(i): [(m["way_id"],) if m["way_id"] is not None else () for m in matched]
+                for i, matched in found[key].items()}
+        out[name] = (ways, meta["match_s"][key])
+    return out
 
 
 if __name__ == "__main__":

@@ -131,20 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--map", type=Path, metavar="DB",
                     help="road-graph database drawn under the plot")
 
-    mt = sub.add_parser("match", help="match a whole GPS trace to a route (offline)",
-                        description="Hidden-Markov-model matching (Newson & Krumm 2009) of a "
-                        "GPX, GeoJSON, CSV or JSON Lines trace. Points are sorted by time and "
-                        "exact duplicates dropped; a gap the road graph cannot bridge starts a "
-                        "new route segment.")
-    mt.add_argument("trace", type=Path, metavar="TRACE",
-                    help="the trace (.gpx, .geojson/.json, .csv, .jsonl)")
-    mt.add_argument("--map", required=True, type=Path, metavar="DB", help="road-graph database")
-    mt.add_argument("-o", "--output", type=Path, metavar="ROUTE.json",
-                    help="write the route JSON here (default: stdout)")
-    mt.add_argument("--sigma", type=_positive_arg, default=HMM_SIGMA_M, metavar="M",
-                    help=f"GPS error in metres (default {HMM_SIGMA_M:g})")
-    mt.add_argument("--json", action="store_true",
-                    help="print the whole route JSON even with -o (default: a summary)")
+    _add_match_parser(sub)
+    _add_tune_parser(sub)
 
     sv = sub.add_parser("serve", help="run the HTTP + WebSocket service",
                         description="Serve the API of interfaces.md (prefix /v1; OpenAPI at "
@@ -163,6 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--warm-up-only", action="store_true",
                     help="compile the filter kernels into numba's cache and exit (the Docker "
                     "build does this, so that a container starts in seconds)")
+    sv.add_argument("--profiles", type=Path, metavar="DIR",
+                    help="a folder of tuned profiles (`navsvc tune`); a session names one by "
+                    "its file stem (default: $NAVSVC_PROFILES)")
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
                         description="Create a session on a running `navsvc serve`, stream the "
@@ -254,8 +245,20 @@ def _add_session_options(parser: argparse.ArgumentParser, epilog: str | None = N
     parser.add_argument("--map-feedback", action="store_true",
                         help="feed confident matches back into the filter as a road "
                         "constraint (bounds drift in GPS outages)")
+    parser.add_argument("--profile", type=Path, metavar="PROFILE.json",
+                        help="tuned parameters for the session (from `navsvc tune`)")
     parser.add_argument("--json", action="store_true", help="print a summary as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _profile_option(args: argparse.Namespace) -> dict[str, Any]:
+    """The session option of ``--profile`` (its parameters inline), or nothing."""
+    if args.profile is None:
+        return {}
+    from navsvc.tuning.profile import read_profile
+
+    return {"profile": {"name": args.profile.stem,
+                        "parameters": read_profile(args.profile)["parameters"]}}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -325,7 +328,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     graph = RoadGraph.open(args.map)
     try:
         config = config_from_options({"sensors": args.sensors, "fusion": args.fusion,
-                                      "map_feedback": args.map_feedback})
+                                      "map_feedback": args.map_feedback,
+                                      **_profile_option(args)})
     except ConfigError as exc:
         print(f"navsvc: error: {exc}", file=sys.stderr)
         return 2
@@ -407,14 +411,73 @@ def format_evaluation(e: Evaluation) -> str:
     return "\n".join(lines)
 
 
+# --- match: one trace or a batch, in process or on Dask (issue 19) ---------------------------
+
+def _add_match_parser(sub: Any) -> None:
+    mt = sub.add_parser("match", help="match GPS traces to routes (offline, one or a batch)",
+                        description="Hidden-Markov-model matching (Newson & Krumm 2009) of "
+                        "GPX, GeoJSON, CSV or JSON Lines traces. Points are sorted by time and "
+                        "exact duplicates dropped; a gap the road graph cannot bridge starts a "
+                        "new route segment. One trace file: its route JSON to stdout or -o. "
+                        "Several (files, folders, globs): one STEM.route.json each in "
+                        "--out-dir and a summary; a bad trace is reported with its file and "
+                        "line and the others go on (exit status 1 if any failed).")
+    mt.add_argument("trace", nargs="+", metavar="TRACE",
+                    help="trace files (.gpx, .geojson/.json, .csv, .jsonl), folders or globs")
+    mt.add_argument("--map", required=True, type=Path, metavar="DB", help="road-graph database")
+    mt.add_argument("-o", "--output", type=Path, metavar="ROUTE.json",
+                    help="one trace: write the route JSON here (default: stdout)")
+    mt.add_argument("--out-dir", type=Path, metavar="DIR",
+                    help="a batch: write the routes here (default: the current folder)")
+    mt.add_argument("--sigma", type=_positive_arg, default=HMM_SIGMA_M, metavar="M",
+                    help=f"GPS error in metres (default {HMM_SIGMA_M:g})")
+    mt.add_argument("--json", action="store_true",
+                    help="one trace: print the whole route JSON even with -o; a batch: print "
+                    "the summary as JSON")
+    mt.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_cluster_options(mt)
+
+
+def _add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, nargs="?", const=-1, default=None, metavar="N",
+                       help="run on a local Dask cluster of N processes on 127.0.0.1 (N "
+                       "omitted: one per core); default: in this process")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on an existing Dask cluster (e.g. tcp://10.0.0.5:8786)")
+
+
+def _executor(args: argparse.Namespace) -> Any:
+    from navsvc.batch import executor
+
+    if args.scheduler is not None:
+        return executor(scheduler=args.scheduler)
+    if args.workers is None:
+        return executor(0)
+    return executor(None if args.workers == -1 else args.workers)
+
+
 def _cmd_match(args: argparse.Namespace) -> int:
+    from navsvc.batch import expand_traces
+
+    single = len(args.trace) == 1 and Path(args.trace[0]).is_file() and args.out_dir is None
+    if single and args.workers is None and args.scheduler is None:
+        return _match_one(args, Path(args.trace[0]))
+    if args.output is not None:
+        print("navsvc: error: -o names one route file; for several traces use --out-dir",
+              file=sys.stderr)
+        return 2
+    return _match_batch(args, expand_traces(args.trace))
+
+
+def _match_one(args: argparse.Namespace, trace: Path) -> int:
     from navsvc.matching.hmm import HmmConfig
     from navsvc.wire.route import match_trace
     from navsvc.wire.traces import read_trace
     from roadgraph import RoadGraph
 
     graph = RoadGraph.open(args.map)
-    fixes = read_trace(args.trace)
+    fixes = read_trace(trace)
     route = match_trace(graph, fixes, HmmConfig(sigma_m=args.sigma, beta_m=2.0 * args.sigma))
     text = json.dumps(route, ensure_ascii=False)
     if args.output is None or args.json:
@@ -428,6 +491,190 @@ def _cmd_match(args: argparse.Namespace) -> int:
             streets = [s for seg in route["segments"] for s in seg["streets"] if s]
             print(f"{args.output}: {len(route['segments'])} segment(s), "
                   f"{route['length_m']:.0f} m; streets: {', '.join(streets) or '-'}")
+    return 0
+
+
+def _match_batch(args: argparse.Namespace, traces: list[Path]) -> int:
+    import time
+
+    from tqdm import tqdm
+
+    from navsvc.batch import chunks, match_files, open_map, output_paths
+    from navsvc.matching.hmm import HmmConfig
+    from roadgraph import RoadGraph
+
+    RoadGraph.open(args.map)  # a wrong map fails here, once
+    folder = args.out_dir or Path(".")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise NavsvcError(f"{folder}: cannot create ({exc.strerror})") from None
+    config = HmmConfig(sigma_m=args.sigma, beta_m=2.0 * args.sigma)
+    jobs = [(str(t), str(o)) for t, o in zip(traces, output_paths(traces, folder))]
+    started = time.perf_counter()
+    summaries: list[Any] = []
+    with _executor(args) as pool, tqdm(total=len(jobs), desc="match", unit="trace",
+                                       disable=args.quiet, leave=False) as bar:
+        pool.warm_up(open_map, str(args.map.resolve()))
+        parts = chunks(jobs, pool.workers if pool.where != "in process" else 1)
+        done: list[Any] = [None] * len(parts)
+        tasks = [(str(args.map.resolve()), part, config) for part in parts]
+        for i, found in pool.run(match_files, tasks):
+            done[i] = found
+            bar.update(len(found))
+        summaries = [s for part in done for s in part]
+        where, workers = pool.where, pool.workers
+    wall_s = time.perf_counter() - started
+    ok = [s for s in summaries if s.error is None]
+    points = sum(s.points for s in ok)
+    total = {"traces": len(summaries), "matched": len(ok), "failed": len(summaries) - len(ok),
+             "points": points, "length_m": round(sum(s.length_m for s in ok), 1),
+             "wall_s": round(wall_s, 3), "points_per_s": round(points / wall_s, 1),
+             "where": where, "workers": workers}
+    if args.json:
+        print(json.dumps({"total": total, "traces": [s.to_json() for s in summaries]}))
+    else:
+        print(f"{'trace':<40}{'points':>8}{'matched %':>10}{'length m':>10}{'time s':>8}")
+        for s in ok:
+            print(f"{Path(s.trace).name[:39]:<40}{s.points:>8}{100 * s.matched_share:>10.1f}"
+                  f"{s.length_m:>10.0f}{s.time_s:>8.2f}")
+        print(f"{len(ok)} of {len(summaries)} traces matched, {points} points in "
+              f"{wall_s:.1f} s ({total['points_per_s']:.0f} points/s, {where}); routes in "
+              f"{folder}")
+    for s in summaries:
+        if s.error is not None:
+            print(f"navsvc: error: {s.error}", file=sys.stderr)
+    return 0 if len(ok) == len(summaries) else 1
+
+
+# --- tune: hill climbing and a genetic algorithm over the parameter table (issue 19) ------
+
+def _add_tune_parser(sub: Any) -> None:
+    tn = sub.add_parser("tune", help="tune fusion and matcher parameters on drives",
+                        description="Search the declared parameter table (--list-params) "
+                        "by hill climbing or a genetic algorithm (seed thesis 5.6), scoring "
+                        "each parameter set by replaying every drive (the code of `navsvc "
+                        "run`): with truth records, a weighted score of the right-road share, "
+                        "the intersections traversed correctly and the fused error relative "
+                        "to raw GPS; a real log without truth against its known --route. "
+                        "Writes a profile (the parameters that differ from the defaults, the "
+                        "fitness before and after) for `run/send --profile` and `serve "
+                        "--profiles`. The run's state is saved after each step "
+                        "(PROFILE.state.json unless --resume names it) and --resume "
+                        "continues it.")
+    tn.add_argument("--map", type=Path, metavar="DB", help="road-graph database")
+    tn.add_argument("--drives", nargs="+", type=Path, metavar="DRIVE.jsonl",
+                    help="drives to tune on (from `navsvc simulate`, or real logs with "
+                    "--route)")
+    tn.add_argument("--route", action="append", default=[], metavar="ROUTE",
+                    help="per drive, in order: the known route of a drive without truth (a "
+                    "GPX, or a file of the OSM way ids driven); '-' for a drive with truth")
+    tn.add_argument("--method", choices=["hill", "ga"], default="hill",
+                    help="hill climbing (default) or the genetic algorithm")
+    tn.add_argument("--budget", type=int, default=40, metavar="N",
+                    help="parameter sets to evaluate, each one replay per drive (default 40)")
+    tn.add_argument("--params", metavar="NAME,NAME...",
+                    help="parameters to tune (default: a useful set; see --list-params)")
+    tn.add_argument("--seed", type=int, default=0, help="random seed of the GA (default 0)")
+    tn.add_argument("--population", type=int, default=10, metavar="N",
+                    help="GA population size (default 10)")
+    tn.add_argument("--from", dest="start", type=Path, metavar="PROFILE.json",
+                    help="start from this profile instead of the defaults")
+    tn.add_argument("--resume", type=Path, metavar="STATE.json",
+                    help="continue the run saved here (started anew when missing)")
+    tn.add_argument("-o", "--output", type=Path, metavar="PROFILE.json",
+                    help="where to write the profile")
+    tn.add_argument("--list-params", action="store_true",
+                    help="print the parameter table and exit")
+    tn.add_argument("--sensors", choices=SENSOR_CHOICES, default="gyro_odometer",
+                    help="sensor configuration of the sessions (default gyro_odometer)")
+    tn.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
+                    help="GPS fusion mode of the sessions (default ekf)")
+    tn.add_argument("--map-feedback", action="store_true", help="sessions with map feedback")
+    tn.add_argument("--json", action="store_true", help="print a summary as JSON")
+    tn.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_cluster_options(tn)
+
+
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from navsvc.tuning.params import DEFAULT_SET, TABLE, select
+
+    if args.list_params:
+        print(f"{'name':<48}{'component':<15}{'range':<28}{'bits':>4}  default set")
+        for p in TABLE:
+            print(f"{p.name:<48}{p.component:<15}{p.describe():<28}{p.bits:>4}  "
+                  f"{'yes' if p.name in DEFAULT_SET else ''}")
+        return 0
+    missing = [f for f, v in (("--map", args.map), ("--drives", args.drives),
+                              ("-o", args.output)) if not v]
+    if missing:
+        print(f"navsvc: error: tune needs {', '.join(missing)}", file=sys.stderr)
+        return 2
+    params = select([n.strip() for n in args.params.split(",") if n.strip()]
+                    if args.params else None)
+    return _tune(args, params)
+
+
+def _tune(args: argparse.Namespace, params: Any) -> int:
+    from tqdm import tqdm
+
+    from navsvc.batch import open_map
+    from navsvc.session import config_from_options
+    from navsvc.tuning.inputs import read_drives
+    from navsvc.tuning.run import TuneRun, result_profile, save_json, tune
+    from roadgraph import RoadGraph
+
+    graph = RoadGraph.open(args.map)
+    drives = read_drives(graph, args.drives, args.route)
+    options = {"sensors": args.sensors, "fusion": args.fusion,
+               "map_feedback": args.map_feedback}
+    if args.start is not None:
+        from navsvc.tuning.profile import read_profile
+
+        options["profile"] = {"parameters": read_profile(args.start)["parameters"]}
+    config_from_options(options)  # a refused combination fails before any replay
+    fresh = TuneRun.start(args.method, params, args.seed, args.budget,
+                          [d.name for d in drives], options, args.population)
+    state_path = args.resume or args.output.with_suffix(".state.json")
+    run = fresh
+    if args.resume is not None and args.resume.exists():
+        try:
+            run = TuneRun.from_json(json.loads(args.resume.read_text(encoding="utf-8")))
+        except (OSError, ValueError, KeyError) as exc:
+            raise ConfigError(f"{args.resume}: not a tuning state ({exc})") from None
+        except ConfigError as exc:
+            raise ConfigError(f"{args.resume}: {exc}") from None
+        run.check_same(fresh)
+        run.budget = args.budget
+    with _executor(args) as pool, tqdm(total=args.budget * len(drives),
+                                       initial=run.evaluations * len(drives),
+                                       desc=f"tune {args.method}", unit="replay",
+                                       disable=args.quiet, leave=False) as bar:
+        def progress(n: int, best: float | None) -> None:
+            bar.update(n)
+            if best is not None:
+                bar.set_postfix(best=f"{best:.4f}")
+
+        pool.warm_up(open_map, str(args.map.resolve()))
+        tune(run, pool, str(args.map.resolve()), drives,
+             save=lambda r: save_json(state_path, r.to_json()), progress=progress)
+        where = pool.where
+    profile = result_profile(run)
+    save_json(args.output, profile)
+    tuned = profile["tuned"]
+    summary = {"output": str(args.output), "state": str(state_path), "method": args.method,
+               "evaluations": run.evaluations, "replays": tuned["replays"],
+               "fitness_before": tuned["fitness_before"],
+               "fitness_after": tuned["fitness_after"], "parameters": profile["parameters"],
+               "where": where}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"{args.output}: fitness {tuned['fitness_before']:.4f} -> "
+              f"{tuned['fitness_after']:.4f} on {len(drives)} drive(s), {run.evaluations} "
+              f"evaluations ({tuned['replays']} replays, {where}); state in {state_path}")
+        for name, value in profile["parameters"].items():
+            print(f"  {name} = {value}")
     return 0
 
 
@@ -445,7 +692,7 @@ def _cmd_send(args: argparse.Namespace) -> int:
             and not (isinstance(line.value, dict) and line.value.get("kind") in left_behind)]
     packets = [line.value for line in kept]
     options = {"vehicle_id": args.vehicle_id, "sensors": args.sensors, "fusion": args.fusion,
-               "map_feedback": args.map_feedback}
+               "map_feedback": args.map_feedback, **_profile_option(args)}
     session_id = create_session(args.url, options, args.api_key)
     with tqdm(total=len(packets), desc="send", unit="pkt", disable=args.quiet,
               leave=False) as bar:
@@ -493,7 +740,9 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
         warm_up(RoadGraph.open(map_path))
         return 0
-    settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog)
+    settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
+                                 profiles_path=args.profiles)
+    log.info("profiles: %s", ", ".join(settings.profiles()) or "none")  # a bad one fails here
     app = create_app(settings)
     # no per-message compression: replies are small, and deflate cost more CPU than it saved
     uvicorn.run(app, host=args.host, port=args.port, ws_ping_interval=20.0,
@@ -537,4 +786,5 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 _COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "evaluate": _cmd_evaluate,
-             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send, "view": _cmd_view}
+             "match": _cmd_match, "serve": _cmd_serve, "send": _cmd_send, "view": _cmd_view,
+             "tune": _cmd_tune}

@@ -12,6 +12,7 @@ restarted server rebuild its open sessions by replaying them.
 
 from __future__ import annotations
 
+import enum
 import hashlib
 import io
 import logging
@@ -22,7 +23,7 @@ import sqlite3
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Generator, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -232,8 +233,67 @@ def config_from_options(options: dict[str, Any]) -> SessionConfig:
                                                 base.mechanisation.value)),
         mounting_rpy_deg=_triple(options.get("imu_mounting_rpy_deg", base.mounting_rpy_deg)),
         lever_arm_m=_triple(options.get("gps_lever_arm_m", base.lever_arm_m)))
-    return SessionConfig(fusion=fusion, strapdown=strapdown,
-                         map_feedback=bool(options.get("map_feedback", False)))
+    config = SessionConfig(fusion=fusion, strapdown=strapdown,
+                           map_feedback=bool(options.get("map_feedback", False)))
+    return apply_profile(config, options.get("profile"))
+
+
+def apply_profile(config: SessionConfig, profile: Any) -> SessionConfig:
+    """``config`` with a tuned profile's parameters set (``navsvc tune``; None: unchanged).
+
+    ``profile`` is a profile document (its ``parameters``) or the mapping itself: dotted
+    paths into :class:`SessionConfig` to numbers or booleans, e.g.
+    ``{"fusion.gps_uere_m": 4.2, "fusion.process.accel_mps2": 0.8,
+    "matcher.road_sigma_m": 5.0}``. A path ending ``.scale`` under a fuzzy set
+    (``fusion.fuzzy.distance_m.scale``) multiplies every finite corner of its trapezoids.
+    Raises ConfigError naming the parameter.
+    """
+    if profile is None:
+        return config
+    if not isinstance(profile, dict):
+        raise ConfigError("profile: expected an object of parameters")
+    parameters = profile.get("parameters", profile)
+    if not isinstance(parameters, dict):
+        raise ConfigError("profile: 'parameters' must be an object")
+    for name, value in parameters.items():
+        config = _set_path(config, str(name).split("."), value, str(name))
+    return config
+
+
+def _set_path(obj: Any, path: list[str], value: Any, name: str) -> Any:
+    """``obj`` (a frozen dataclass) with the field at ``path`` replaced by ``value``."""
+    head, rest = path[0], path[1:]
+    if isinstance(obj, dict) and rest == [] and head == "scale":
+        factor = _number(value, float, name)
+        return {k: tuple(c * factor if math.isfinite(c) else c for c in corners)
+                for k, corners in obj.items()}
+    known = {f.name for f in fields(obj)} if is_dataclass(obj) else set()
+    if head not in known:
+        raise ConfigError(f"profile parameter {name!r}: {type(obj).__name__} has no field "
+                          f"{head!r}")
+    current = getattr(obj, head)
+    if rest:
+        new = _set_path(current, rest, value, name)
+    elif isinstance(current, bool | int | float) and not isinstance(current, enum.Enum):
+        new = _number(value, type(current), name)
+    else:
+        raise ConfigError(f"profile parameter {name!r}: only numbers and booleans may be set")
+    try:
+        return replace(obj, **{head: new})
+    except ConfigError as exc:
+        raise ConfigError(f"profile parameter {name!r}: {exc}") from None
+
+
+def _number(value: Any, kind: type, name: str) -> Any:
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"profile parameter {name!r}: expected true or false")
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float) or \
+            not math.isfinite(value) or (kind is int and value != int(value)):
+        raise ConfigError(f"profile parameter {name!r}: expected a finite "
+                          f"{'integer' if kind is int else 'number'}, got {value!r}")
+    return kind(value)
 
 
 def _triple(values: Any) -> tuple[float, float, float]:

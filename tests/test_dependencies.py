@@ -22,11 +22,27 @@ def _name(requirement: str) -> str:
     return re.sub(r"[-_.]+", "-", match.group(0)).lower()
 
 
+OPTIONAL_EXTRAS = ("distributed",)  # imported only inside a guard that names the extra
+
+
+def _extra_requirements(requirement: str) -> list[str]:
+    """What ``name[extra]`` adds to ``name``: its requirements marked for that extra."""
+    match = re.match(r"([A-Za-z0-9_.-]+)\[([^\]]+)\]", requirement)
+    if not match:
+        return []
+    wanted = {e.strip() for e in match.group(2).split(",")}
+    return [_name(r) for r in requires(match.group(1)) or []
+            if any(f'extra == "{e}"' in r for e in wanted)]
+
+
 def runtime_distributions() -> set[str]:
-    """The declared runtime dependencies and, transitively, what they require (extras
-    aside)."""
+    """The declared runtime dependencies, those of the optional extras a command asks for
+    by name (``OPTIONAL_EXTRAS``), and transitively what they require (extras aside)."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     todo = [_name(r) for r in project["dependencies"]]
+    for extra in OPTIONAL_EXTRAS:
+        for requirement in project["optional-dependencies"][extra]:
+            todo += [_name(requirement), *_extra_requirements(requirement)]
     seen: set[str] = set()
     while todo:
         name = todo.pop()

@@ -38,6 +38,10 @@ class SessionCreate(BaseModel):
                           "degrees")
     gps_lever_arm_m: tuple[float, float, float] | None = Field(
         None, description="strapdown: GPS antenna from the IMU, forward/right/down, metres")
+    profile: dict[str, Any] | str | None = Field(
+        None, description="tuned parameters (`navsvc tune`): a profile inline (the document, "
+        "or its 'parameters' object of dotted names to values), or the name of a profile the "
+        "server was started with (`navsvc serve --profiles DIR`: the file's stem)")
 
     def options(self) -> dict[str, Any]:
         return self.model_dump(mode="json", exclude={"vehicle_id"}, exclude_none=True)

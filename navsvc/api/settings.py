@@ -13,11 +13,13 @@
 | ``NAVSVC_SESSION_IDLE_S`` | 3600 | a session with no packet for this long ends |
 | ``NAVSVC_WS_QUEUE`` | 64 | replies queued per WebSocket before the oldest is dropped |
 | ``NAVSVC_VIEW_HISTORY`` | 7200 | batches with fixes or positions kept per watched session |
+| ``NAVSVC_PROFILES`` | (none) | folder of tuned profiles a session may name (``navsvc tune``) |
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,6 +43,7 @@ class Settings:
     session_idle_s: float = 3600.0
     ws_queue_messages: int = 64
     view_history_batches: int = 7200  # per session a map viewer watches (navsvc.web.feed)
+    profiles_path: Path | None = None  # a folder of tuned profiles (`serve --profiles`)
 
     def __post_init__(self) -> None:
         for name in ("max_body_bytes", "max_batch_packets", "max_trace_points",
@@ -50,6 +53,10 @@ class Settings:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.triplog_sync not in ("normal", "full"):
             raise ConfigError(f"triplog_sync must be normal or full, got {self.triplog_sync!r}")
+
+    def profiles(self) -> dict[str, dict[str, Any]]:
+        """The profiles of ``profiles_path`` by name (read once; none without a folder)."""
+        return _profiles(self.profiles_path) if self.profiles_path is not None else {}
 
     @property
     def triplog(self) -> Path:
@@ -69,14 +76,25 @@ class Settings:
         return cls(**values)
 
 
-_ENV_NAMES = {"map_path": "map", "triplog_path": "triplog", "view_history_batches": "view_history"}
+_ENV_NAMES = {"map_path": "map", "triplog_path": "triplog",
+              "view_history_batches": "view_history",
+              "profiles_path": "profiles"}
+
+
+@functools.cache
+def _profiles(folder: Path) -> dict[str, dict[str, Any]]:
+    from navsvc.tuning.profile import read_profiles
+
+    return read_profiles(folder)
+
+
 _INTS = {"max_body_bytes", "max_batch_packets", "max_trace_points", "max_sessions_per_key",
          "ws_queue_messages", "view_history_batches"}
 
 
 def _convert(field: str, text: str, env_name: str) -> Any:
     try:
-        if field in ("map_path", "triplog_path"):
+        if field in ("map_path", "triplog_path", "profiles_path"):
             return Path(text)
         if field == "api_keys":
             return frozenset(k.strip() for k in text.split(",") if k.strip())

@@ -10,6 +10,7 @@ from fastapi import APIRouter, Body, HTTPException, Query, Response
 
 from navsvc.api.deps import AppState, OwnerDep, StateDep
 from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
+from navsvc.errors import ConfigError
 from navsvc.session import MAX_CLIENT_SEQ, LiveSession
 from navsvc.wire.positions import position_json
 
@@ -49,11 +50,24 @@ def ingest(state: AppState, session: LiveSession, packets: list[Any],
     return done.reply
 
 
+def named_profile(state: AppState, name: str) -> dict[str, Any]:
+    """A profile of ``navsvc serve --profiles DIR`` by name, as the options keep it (its
+    parameters inline, so a restored session does not depend on the folder)."""
+    known = state.settings.profiles()
+    if name not in known:
+        raise ConfigError(f"no profile {name!r} on this server (known: "
+                          f"{', '.join(sorted(known)) or 'none; start it with --profiles DIR'})")
+    return {"name": name, "parameters": known[name]["parameters"]}
+
+
 @router.post("", status_code=201, response_model=SessionInfo,
              responses={422: {"model": ErrorBody}, 429: {"model": ErrorBody}})
 async def create_session(body: SessionCreate, state: StateDep, owner: OwnerDep) -> SessionInfo:
     """Start a session for one vehicle."""
-    session = state.store.create(owner, body.vehicle_id, body.options())
+    options = body.options()
+    if isinstance(body.profile, str):
+        options["profile"] = named_profile(state, body.profile)
+    session = state.store.create(owner, body.vehicle_id, options)
     state.metrics.sessions.set(len(state.store))
     return session_info(state, session)
 
