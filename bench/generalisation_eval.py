@@ -77,6 +77,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--all-configs", action="store_true",
                         help="every sensor configuration x GPS mode (default: gyro_odometer "
                         "+ ekf)")
+    parser.add_argument("--configs", metavar="SENSORS:MODE,...",
+                        help="these configurations instead, e.g. gyro_odometer:rules,"
+                        "gyro_accel:ekf (the first counts as the default in the tables)")
     parser.add_argument("--workers", type=int, default=2, help="processes (at most 2 here)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a FusionConfig number for every run (tuning; "
@@ -115,7 +118,11 @@ def _urbannav() -> GnssErrorRecording:
                           (folder / "groundTruth_TST.csv").read_text())
 
 
-def _configs(all_configs: bool) -> list[tuple[SensorConfig, GpsMode]]:
+def _configs(all_configs: bool, chosen: str | None = None
+             ) -> list[tuple[SensorConfig, GpsMode]]:
+    if chosen:
+        pairs = [item.split(":") for item in chosen.split(",") if item]
+        return [(SensorConfig(s), GpsMode(m)) for s, m in pairs]
     if not all_configs:
         return [DEFAULT_CONFIG]
     return [(s, m) for s, m in product(SensorConfig, GpsMode) if s not in EKF_ONLY
@@ -150,13 +157,14 @@ def harsh_drive(graph: RoadGraph, seed: int, duration: float
     return simulate_drive(graph, spec), spec, outage_start
 
 
-def _one_drive(job: tuple[str, int, float, bool, dict[str, float]]) -> list[dict[str, Any]]:
-    map_name, seed, duration, all_configs, overrides = job
+def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None]
+               ) -> list[dict[str, Any]]:
+    map_name, seed, duration, all_configs, overrides, chosen = job
     graph = RoadGraph.open(_map_db(map_name))
     urbannav = seed % URBANNAV_EVERY == 0
     drive, spec, outage_start = harsh_drive(graph, seed, duration)
     rows = []
-    for sensors, mode in _configs(all_configs):
+    for sensors, mode in _configs(all_configs, chosen):
         started = time.perf_counter()
         kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
         fusion = FusionConfig(sensors=sensors, gps_mode=mode, **overrides)  # type: ignore[arg-type]
@@ -218,9 +226,10 @@ def _print_breakdown(rows: list[dict[str, Any]], key: str, title: str) -> None:
                         "right road %"], table)
 
 
-def _print_configs(rows: list[dict[str, Any]]) -> None:
+def _print_configs(rows: list[dict[str, Any]],
+                   configs: list[tuple[SensorConfig, GpsMode]]) -> None:
     table = []
-    for sensors, mode in _configs(True):
+    for sensors, mode in configs:
         g = [r for r in rows if (r["sensors"], r["mode"]) == (sensors.value, mode.value)]
         met = sum(m for *_, m in check(_cards(g)))
         table.append([sensors.value, mode.value, _median(g, "fused_to_raw_ratio"),
@@ -245,7 +254,8 @@ def main() -> None:
     for name in maps:  # once, before the workers start
         _map_db(name)
     overrides = _overrides(args.set)
-    jobs = [(name, seeds[i * len(maps) + k], args.duration, args.all_configs, overrides)
+    jobs = [(name, seeds[i * len(maps) + k], args.duration, args.all_configs, overrides,
+             args.configs)
             for i in range(args.drives_per_map) for k, name in enumerate(maps)]
     rows: list[dict[str, Any]] = []
     started = time.perf_counter()
@@ -253,15 +263,18 @@ def main() -> None:
         for found in tqdm(pool.map(_one_drive, jobs), total=len(jobs), desc="drives"):
             rows += found
     wall_s = time.perf_counter() - started
-    default = [r for r in rows if (r["sensors"], r["mode"]) == (DEFAULT_CONFIG[0].value,
-                                                                 DEFAULT_CONFIG[1].value)]
+    configs = _configs(args.all_configs, args.configs)
+    main_config = DEFAULT_CONFIG if DEFAULT_CONFIG in configs else configs[0]
+    default = [r for r in rows if (r["sensors"], r["mode"]) == (main_config[0].value,
+                                                                 main_config[1].value)]
+    name = f"{main_config[0].value} + {main_config[1].value}"
     head = (f"{len(jobs)} drives x {args.duration:.0f} s on {len(maps)} maps, {args.split} "
             f"split, harsh-urban profile, {OUTAGE_LENGTH_S:.0f} s outage mid-drive")
-    _print_targets(default, f"Targets, gyro_odometer + ekf: {head}")
-    _print_breakdown(default, "map", "By map (gyro_odometer + ekf; medians, max where said)")
-    _print_breakdown(default, "gps_error", "By GPS error model (gyro_odometer + ekf)")
-    if args.all_configs:
-        _print_configs(rows)
+    _print_targets(default, f"Targets, {name}: {head}")
+    _print_breakdown(default, "map", f"By map ({name}; medians, max where said)")
+    _print_breakdown(default, "gps_error", f"By GPS error model ({name})")
+    if len(configs) > 1:
+        _print_configs(rows, configs)
     print(f"\nwall time {wall_s:.0f} s with {min(args.workers, 2)} workers")
     write_json(f"generalisation_eval_{args.split}", {
         "split": args.split, "drives": len(jobs), "duration_s": args.duration, "maps": maps,

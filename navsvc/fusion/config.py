@@ -50,7 +50,7 @@ class FusionConfig:
     track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump
     max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused as long as
     # the track had lasted, this long at most (non-line-of-sight runs last 10-60 s)
-    reacquire_after_gated_s: float = 30.0  # ekf: fixes refused this long → start over from GPS
+    reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS
     inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad

@@ -587,6 +587,9 @@ class RoadFilter:
             s.gated_courses = 0
 
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
+        """The thesis's rules or fuzzy weights; fixes farther than the rules' distance
+        threshold (and 5 sigma) for ``reacquire_after_gated_s`` restart the estimate from GPS (the thesis waits 3,000 fixes, for SA-era GPS: fifty
+        minutes of dead reckoning at 1 Hz, by which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
         fix = self._with_velocity(fix, east, north)
@@ -601,6 +604,14 @@ class RoadFilter:
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
                 GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
+        if distance > max(cfg.rules.max_distance_m, 5.0 * self._sigma_m(fix)):
+            s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
+            if fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
+                decision = GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
+                                       "re-acquiring: far from the fixes too long")
+                s.first_gated_t = None
+        else:
+            s.first_gated_t = None
         self._apply_decision(fix, decision, east, north)
 
     def _with_velocity(self, fix: GpsFix, east: float, north: float) -> GpsFix:
