@@ -30,8 +30,9 @@ DT_S = 0.01  # 100 Hz inertial rate
 
 
 def _state() -> tuple[np.ndarray, np.ndarray]:
-    x = np.array([10.0, 20.0, 0.5, 12.0, 0.05, 0.001, 1.01, 0.02])
-    P = np.diag([4.0, 4.0, 0.01, 0.5, 0.01, 1e-4, 1e-3, 1e-2])
+    x = np.array([10.0, 20.0, 0.5, 12.0, 0.05, 0.001, 1.01, 0.02, 0.01, 1.0, -1.0, 0.1])
+    P = np.diag([4.0, 4.0, 0.01, 0.5, 0.01, 1e-4, 1e-3, 1e-2, 4e-4, 9.0, 9.0, 0.01])
+    assert len(x) == N_STATES
     return x, P
 
 
