@@ -17,6 +17,7 @@ import networkx as nx
 from tqdm import tqdm
 
 from roadgraph.build import DEFAULT_CONSOLIDATE_M, MapInfo, build_network
+from roadgraph.intersections import build_intersection_graph
 from roadgraph.osm import (
     ReadReport,
     Stage,
@@ -24,14 +25,19 @@ from roadgraph.osm import (
     file_sha256,
     read_graphml,
     read_osm,
+    read_roads,
 )
-from roadgraph.store import check_writable, write_network
+from roadgraph.store import check_writable, write_map, write_network
 
 log = logging.getLogger(__name__)
 
 # The steps of an import from a local OSM file, in order (the progress bar's total).
-_FILE_STEPS = ("reading ways", "reading nodes", "building the raw graph (osmnx)",
-               "simplifying and consolidating", "writing the database")
+_FILE_STEPS = ("reading ways", "reading nodes", "building the raw graph", "simplifying",
+               "projecting", "consolidating junctions", "edge geometry and tags",
+               "writing the database")
+_OSMNX_FILE_STEPS = ("reading ways", "reading nodes", "building the raw graph (osmnx)",
+                     "simplifying and consolidating", "writing the database")
+BUILDERS = ("arrays", "osmnx")
 
 
 def import_map(
@@ -43,15 +49,29 @@ def import_map(
     network: str = "drive",
     consolidate_m: float = DEFAULT_CONSOLIDATE_M,
     progress: bool = False,
+    builder: str = "arrays",
 ) -> MapInfo:
-    """Import one map from a local file, a place name or a bounding box; return its summary."""
+    """Import one map from a local file, a place name or a bounding box; return its summary.
+
+    A local OSM file goes through roadgraph's array builder by default (bounded memory, any
+    size: :mod:`roadgraph.intersections`); ``builder="osmnx"`` takes osmnx's, which gives the
+    same graph on small maps (``tests/roadgraph/test_intersections.py``). Downloads and
+    ``.graphml`` graphs always go through osmnx.
+    """
     if (source is None) == (place is None and bbox is None) or (place and bbox):
         raise ValueError("give exactly one of SOURCE, --place or --bbox")
+    if builder not in BUILDERS:
+        raise ValueError(f"unknown builder {builder!r}; choose from {BUILDERS}")
     check_writable(output)
     osm_file = source is not None and source.suffix != ".graphml"
-    # Steps take very different times (osmnx's part dominates): the step's name and number,
-    # and the time so far; no percentage or estimate, which would be made up.
-    total = len(_FILE_STEPS) if osm_file else 3
+    arrays = osm_file and builder == "arrays"
+    # Steps take very different times: the step's name and number and the time so far; a
+    # percentage and an estimate only inside a step whose total is known (nodes, edges).
+    names = (_FILE_STEPS if consolidate_m > 0 else
+             tuple(n for n in _FILE_STEPS if n != "consolidating junctions")) if arrays \
+        else _OSMNX_FILE_STEPS if osm_file else ("read", "simplifying and consolidating",
+                                                 "writing the database")
+    total = len(names)
     steps = tqdm(total=total, desc="import", bar_format="{desc} [{elapsed}]", leave=False,
                  disable=None if progress else True, position=0)
 
@@ -59,20 +79,51 @@ def import_map(
         steps.update()
         steps.set_description_str(f"import, step {steps.n}/{total}: {name}")
 
+    created = datetime.now(UTC).isoformat(timespec="seconds")
     with steps:
-        raw, report, name, sha = _read_source(source, place, bbox, network, progress, stage)
-        log.info("read %d OSM nodes, %d edges", raw.number_of_nodes(), raw.number_of_edges())
-        stage("simplifying and consolidating")
-        net = build_network(raw, consolidate_m=consolidate_m, network=network,
-                            source=str(source) if source is not None else name)
-        info = _with_report(dataclasses.replace(
-            net.info, source_name=name, source_sha256=sha,
-            created_utc=datetime.now(UTC).isoformat(timespec="seconds"),
-        ), report)
-        net = dataclasses.replace(net, info=info)
-        stage("writing the database")
-        write_network(net, output)
+        if arrays:
+            assert source is not None
+            info = _import_with_arrays(output, source, network, consolidate_m, progress, stage,
+                                       created)
+        else:
+            info = _import_with_osmnx(output, source, place, bbox, network, consolidate_m,
+                                      progress, stage, created)
     log.info("wrote %s: %d nodes, %d edges", output, info.node_count, info.edge_count)
+    return info
+
+
+def _import_with_arrays(output: Path, source: Path, network: str, consolidate_m: float,
+                        progress: bool, stage: Stage, created: str) -> MapInfo:
+    roads, report = read_roads(source, network, progress=progress, stage=stage)
+    log.info("read %d OSM nodes, %d pieces of ways", len(roads.node_ids), len(roads.piece_way))
+    built = build_intersection_graph(roads, consolidate_m=consolidate_m, network=network,
+                                     source=str(source), step=stage)
+    del roads
+    info = _with_report(dataclasses.replace(
+        built.info, source_name=source.name, source_sha256=file_sha256(source),
+        created_utc=created), report)
+    stage("writing the database")
+    with tqdm(total=info.edge_count, desc="  edges written", unit=" edges", leave=False,
+              position=1, mininterval=0.5, disable=None if progress else True) as bar:
+        write_map(output, info, built.arrays, built.attributes,
+                  progress=lambda n: bar.update(n - bar.n))
+    return info
+
+
+def _import_with_osmnx(output: Path, source: Path | None, place: str | None,
+                       bbox: tuple[float, float, float, float] | None, network: str,
+                       consolidate_m: float, progress: bool, stage: Stage,
+                       created: str) -> MapInfo:
+    raw, report, name, sha = _read_source(source, place, bbox, network, progress, stage)
+    log.info("read %d OSM nodes, %d edges", raw.number_of_nodes(), raw.number_of_edges())
+    stage("simplifying and consolidating")
+    net = build_network(raw, consolidate_m=consolidate_m, network=network,
+                        source=str(source) if source is not None else name)
+    info = _with_report(dataclasses.replace(
+        net.info, source_name=name, source_sha256=sha, created_utc=created), report)
+    net = dataclasses.replace(net, info=info)
+    stage("writing the database")
+    write_network(net, output)
     return info
 
 
@@ -82,12 +133,12 @@ def _read_source(
 ) -> tuple[nx.MultiDiGraph, ReadReport | None, str, str]:
     """The raw graph, the read report (local OSM files only), the source's name and SHA-256."""
     if source is not None and source.suffix == ".graphml":
-        stage("reading GraphML")
+        stage("read")
         return read_graphml(source), None, source.name, file_sha256(source)
     if source is not None:
         read = read_osm(source, network, progress=progress, stage=stage)
         return read.graph, read.report, source.name, file_sha256(source)
-    stage("downloading (osmnx)")
+    stage("read")
     raw = download_graph(place=place, bbox=bbox, network=network)
     return raw, None, (f"place:{place}" if place else f"bbox:{bbox}"), ""
 
