@@ -379,14 +379,27 @@ def consolidate(edges: _Edges, kept: IntArray, xy: FloatArray, tolerance_m: floa
     np.add.at(parts_per_buffer, buffer_cluster[first_at], 1)
     order = np.argsort(cluster, kind="stable")
     bounds = np.concatenate([[0], np.cumsum(size)])
-    for c in np.flatnonzero(size > 1).tolist():
-        members = order[bounds[c]:bounds[c + 1]]
-        if parts_per_buffer[buffer_cluster[members[0]]] > 1:
-            pos[c] = np.unique(pts[members], axis=0).mean(axis=0)
-        else:
-            union = shapely.union_all(shapely.buffer(shapely.points(pts[members]), tolerance_m,
-                                                     quad_segs=_BUFFER_QUAD_SEGS))
-            pos[c] = shapely.get_coordinates(shapely.centroid(union))[0]
+    member_cluster = cluster[order]
+    multi = size[member_cluster] > 1
+    split = parts_per_buffer[buffer_cluster[order]] > 1
+    whole = multi & ~split  # a cluster as osmnx's buffers made it: their union's centroid
+    if np.any(whole):
+        ids, dense = np.unique(member_cluster[whole], return_inverse=True)
+        mp = shapely.multipoints(pts[order[whole]], indices=dense.ravel())
+        union = shapely.buffer(mp, tolerance_m, quad_segs=_BUFFER_QUAD_SEGS)
+        pos[ids] = shapely.get_coordinates(shapely.centroid(union))
+    part_of = multi & split  # a part of a split cluster: the mean of its distinct points
+    if np.any(part_of):
+        c, p = member_cluster[part_of], pts[order[part_of]]
+        o = np.lexsort((p[:, 1], p[:, 0], c))
+        c, p = c[o], p[o]
+        distinct = np.ones(len(c), dtype=bool)
+        distinct[1:] = (c[1:] != c[:-1]) | np.any(p[1:] != p[:-1], axis=1)
+        c, p = c[distinct], p[distinct]
+        count = np.bincount(c, minlength=len(size))
+        ids = np.unique(c)
+        pos[ids, 0] = np.bincount(c, p[:, 0], minlength=len(size))[ids] / count[ids]
+        pos[ids, 1] = np.bincount(c, p[:, 1], minlength=len(size))[ids] / count[ids]
     node_of = np.full(n, -1, dtype=np.int64)
     node_of[kept] = cluster
     return node_of, pos, (bounds.astype(np.int64), kept[order])
@@ -544,37 +557,38 @@ def _attributes(roads: RoadPieces, edges: _Edges, order: IntArray, lonlat: Float
     """Each edge's tags from its ways (osmnx's merge: unique values; names joined, the
     largest lane count, a tunnel or bridge when any part is one)."""
     tags, way_ids = roads.way_tags, roads.way_ids.tolist()
-    oneway, _ = way_directions(tags)
     ws, wl = edges.way_start.tolist(), edges.ways.tolist()
-    out: dict[str, list[object]] = {k: [] for k in ("ids", "name", "highway", "oneway",
-                                                    "maxspeed", "lanes", "tunnel", "bridge")}
-    cache: dict[tuple[int, ...], tuple[object, ...]] = {}
+    ids: list[tuple[int, ...]] = []
+    rows: list[tuple[object, ...]] = []
+    cache: dict[tuple[tuple[str | None, ...], ...], tuple[object, ...]] = {}
     for e in order.tolist():
-        group = tuple(dict.fromkeys(wl[ws[e]:ws[e + 1]]))
-        row = cache.get(group)
+        lo, hi = ws[e], ws[e + 1]
+        group = (wl[lo],) if hi - lo == 1 else tuple(dict.fromkeys(wl[lo:hi]))
+        ids.append(tuple(way_ids[w] for w in group))
+        values = tuple(tags[w] for w in group)  # tag tuples are shared: ways repeat them
+        row = cache.get(values)
         if row is None:
-            row = cache[group] = _merge_tags(group, tags, way_ids, oneway)
-        for name, value in zip(out, row):
-            out[name].append(value)
+            row = cache[values] = _merge_tags(values)
+        rows.append(row)
+    cols = list(zip(*rows)) if rows else [()] * 7
     return EdgeAttributes(
-        osm_way_ids=out["ids"], name=out["name"], highway=out["highway"],  # type: ignore[arg-type]
-        oneway=out["oneway"], maxspeed=out["maxspeed"], lanes=out["lanes"],  # type: ignore[arg-type]
-        tunnel=out["tunnel"], bridge=out["bridge"], lonlat=lonlat)  # type: ignore[arg-type]
+        osm_way_ids=ids, name=list(cols[0]), highway=list(cols[1]),  # type: ignore[arg-type]
+        oneway=list(cols[2]), maxspeed=list(cols[3]), lanes=list(cols[4]),  # type: ignore[arg-type]
+        tunnel=list(cols[5]), bridge=list(cols[6]), lonlat=lonlat)  # type: ignore[arg-type]
 
 
-def _merge_tags(group: tuple[int, ...], tags: list[tuple[str | None, ...]], way_ids: list[int],
-                oneway: IntArray) -> tuple[object, ...]:
-    values = [tags[w] for w in group]
+def _merge_tags(values: tuple[tuple[str | None, ...], ...]) -> tuple[object, ...]:
+    """name, highway, oneway, maxspeed, lanes, tunnel, bridge of the ways' tags together."""
+    oneway, _ = way_directions(list(values))
     names = [t[_TAG["name"]] for t in values if t[_TAG["name"]] is not None]
     highways = [t[_TAG["highway"]] for t in values if t[_TAG["highway"]] is not None]
     speeds = [t[_TAG["maxspeed"]] for t in values if t[_TAG["maxspeed"]] is not None]
     lanes = [int(float(s)) for t in values if t[_TAG["lanes"]] is not None
              for s in _iter_numbers([t[_TAG["lanes"]]])]
     return (
-        tuple(dict.fromkeys(way_ids[w] for w in group)),
         "; ".join(dict.fromkeys(str(n) for n in names)) or None,
         str(highways[0]) if highways else "road",
-        bool(any(oneway[w] for w in group)),
+        bool(oneway.any()),
         str(speeds[0]) if speeds else None,
         max(lanes) if lanes else None,
         any(_tag_yes(t[_TAG["tunnel"]]) for t in values),
