@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 from roadgraph.arrays import EdgeAttributes, GraphArrays, build_arrays
 from roadgraph.build import MapInfo, _iter_numbers, _tag_yes
 from roadgraph.errors import NoDrivableRoadError
-from roadgraph.geometry import FloatArray, LocalFrame, utm_crs_for
+from roadgraph.geometry import FloatArray, LocalFrame, unique_sorted, utm_crs_for
 from roadgraph.osm import WAY_TAGS, RoadPieces
 from roadgraph.spatial import IntArray
 
@@ -166,7 +166,7 @@ def endpoints(u: IntArray, v: IntArray, n: int) -> IntArray:
     loop = np.zeros(n, dtype=bool)
     loop[u[u == v]] = True
     a, b = np.minimum(u, v), np.maximum(u, v)
-    pairs = np.unique((a * n + b)[a != b])
+    pairs = unique_sorted((a * n + b)[a != b])
     neighbours = np.bincount(pairs // n, minlength=n) + np.bincount(pairs % n, minlength=n)
     degree = in_deg + out_deg
     through = (neighbours == 2) & ((degree == 2) | (degree == 4))
@@ -397,7 +397,7 @@ def consolidate(edges: _Edges, kept: IntArray, xy: FloatArray, tolerance_m: floa
         distinct[1:] = (c[1:] != c[:-1]) | np.any(p[1:] != p[:-1], axis=1)
         c, p = c[distinct], p[distinct]
         count = np.bincount(c, minlength=len(size))
-        ids = np.unique(c)
+        ids = unique_sorted(c)
         pos[ids, 0] = np.bincount(c, p[:, 0], minlength=len(size))[ids] / count[ids]
         pos[ids, 1] = np.bincount(c, p[:, 1], minlength=len(size))[ids] / count[ids]
     node_of = np.full(n, -1, dtype=np.int64)
@@ -547,7 +547,7 @@ def _lengths_bearings(coords: FloatArray, start: IntArray) -> tuple[FloatArray, 
 def _degrees(u: IntArray, v: IntArray, n: int) -> IntArray:
     """Distinct neighbours of each node, either direction, itself left out."""
     a, b = np.minimum(u, v), np.maximum(u, v)
-    pairs = np.unique((a * n + b)[a != b])
+    pairs = unique_sorted((a * n + b)[a != b])
     return (np.bincount(pairs // n, minlength=n) + np.bincount(pairs % n, minlength=n)
             ).astype(np.int64)
 

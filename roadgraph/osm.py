@@ -46,7 +46,7 @@ import osmium
 from tqdm import tqdm
 
 from roadgraph.errors import MapSourceError, NoDrivableRoadError
-from roadgraph.geometry import FloatArray
+from roadgraph.geometry import FloatArray, unique_sorted
 
 IntArray = npt.NDArray[np.int64]
 
@@ -197,7 +197,7 @@ def read_roads(path: Path, network: str = "drive", *, progress: bool = False,
     node_ids, lonlat, invalid = _read_nodes(path, _needed_nodes(refs, deleted), progress)
     roads, cut, outside, missing = _clip(ways, refs, node_ids, lonlat)
     report = ReadReport(
-        ways_kept=len(np.unique(roads.piece_way)), ways_cut=cut,
+        ways_kept=len(unique_sorted(roads.piece_way)), ways_cut=cut,
         ways_dropped_outside=outside, ways_dropped_one_node=ways.one_node,
         ways_not_in_network=sum(ways.other.values()), missing_node_refs=missing,
         negative_ids=ways.negative + int(np.count_nonzero(node_ids < 0)),
@@ -393,7 +393,7 @@ def _check_some_ways(path: Path, network: str, ways: _Ways) -> None:
 
 
 def _needed_nodes(refs: IntArray, deleted: frozenset[tuple[str, int]]) -> IntArray:
-    needed = np.unique(refs)
+    needed = unique_sorted(refs)
     gone = [i for kind, i in deleted if kind == "node"]
     return needed[~np.isin(needed, gone)] if gone else needed
 
@@ -586,7 +586,7 @@ def _clip(ways: _Ways, refs: IntArray, node_ids: IntArray, lonlat: FloatArray
             piece_len.append(len(part))
             chunks.append(np.asarray(part, dtype=np.int64))
     flat = np.concatenate(chunks) if chunks else np.empty(0, dtype=np.int64)
-    used = np.unique(flat)
+    used = unique_sorted(flat)
     keep = np.isin(node_ids, used)
     roads = RoadPieces(
         way_ids=np.frombuffer(ways.ids, dtype=np.int64).copy(), way_tags=ways.tags,
