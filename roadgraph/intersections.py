@@ -86,6 +86,7 @@ def build_intersection_graph(roads: RoadPieces, *, consolidate_m: float, network
     n_raw = len(roads.node_ids)
     say("simplifying")
     simple, kept = simplify(raw_u, raw_v, raw_way, n_raw)
+    del raw_u, raw_v, raw_way
     lonlat = roads.node_lonlat
     lon, lat = _centre(lonlat[kept])
     frame = LocalFrame(utm_crs_for(lon, lat).to_wkt())
@@ -107,9 +108,13 @@ def build_intersection_graph(roads: RoadPieces, *, consolidate_m: float, network
         keep = np.ones(len(simple.u), dtype=bool)
         node_ids = roads.node_ids[kept]
     say("edge geometry and tags")
-    return _finish(roads, simple, keep, node_of, node_ids, pos, members, xy, frame,
-                   consolidate_m=consolidate_m, network=network, merged=len(kept) - len(pos),
-                   source=source)
+    k = np.flatnonzero(keep)
+    if len(k) == 0:
+        raise NoDrivableRoadError(f"{source}: no drivable road")
+    if len(k) < len(simple.u):
+        simple = _select(simple, k)
+    return _finish(roads, simple, node_of, node_ids, pos, members, xy, frame,
+                   consolidate_m=consolidate_m, network=network, merged=len(kept) - len(pos))
 
 
 def _singletons(ids: IntArray) -> tuple[IntArray, IntArray]:
@@ -406,14 +411,11 @@ def consolidate(edges: _Edges, kept: IntArray, xy: FloatArray, tolerance_m: floa
 
 
 # --- records --------------------------------------------------------------------------------------
-def _finish(roads: RoadPieces, simple: _Edges, keep: IntArray, node_of: IntArray,
+def _finish(roads: RoadPieces, edges: _Edges, node_of: IntArray,
             node_ids: IntArray, pos: FloatArray, members: tuple[IntArray, IntArray],
             xy: FloatArray, frame: LocalFrame, *, consolidate_m: float, network: str,
-            merged: int, source: str) -> BuiltGraph:
-    k = np.flatnonzero(keep)
-    if len(k) == 0:
-        raise NoDrivableRoadError(f"{source}: no drivable road")
-    edges = _select(simple, k) if len(k) < len(simple.u) else simple
+            merged: int) -> BuiltGraph:
+
     cu, cv = node_of[edges.u], node_of[edges.v]
     coords, coord_start = _edge_coords(edges, cu, cv, pos, xy)
     lengths, bearings = _lengths_bearings(coords, coord_start)
@@ -456,26 +458,40 @@ def _edge_coords(edges: _Edges, cu: IntArray, cv: IntArray, pos: FloatArray, xy:
                  ) -> tuple[FloatArray, IntArray]:
     """Each edge's vertices: its new end positions around its path, consecutive duplicates
     (within 1 µm) dropped; a loop of one point keeps it twice."""
-    n = len(cu)
-    counts = np.diff(edges.path_start) + 2
-    total = int(counts.sum())
-    out = np.empty((total, 2))
-    begin = np.concatenate([[0], np.cumsum(counts)])[:-1]
-    out[begin] = pos[cu]
-    out[begin + counts - 1] = pos[cv]
-    inner = np.ones(total, dtype=bool)
-    inner[begin] = False
-    inner[begin + counts - 1] = False
-    out[inner] = xy[edges.path]
-    owner = np.repeat(np.arange(n), counts)
-    keep = np.ones(total, dtype=bool)
-    keep[1:] = np.any(np.abs(np.diff(out, axis=0)) > 1e-6, axis=1) | (owner[1:] != owner[:-1])
-    kept_counts = np.bincount(owner[keep], minlength=n)
-    single = np.flatnonzero(kept_counts == 1)
-    if single.size:  # a self-loop reduced to one point: keep two
-        keep[begin[single] + 1] = True
-        kept_counts[single] = 2
-    return out[keep], np.concatenate([[0], np.cumsum(kept_counts)]).astype(np.int64)
+    return _edge_coords_kernel(edges.path_start, edges.path, cu, cv, pos,
+                               np.ascontiguousarray(xy))
+
+
+@numba.njit(cache=True)
+def _edge_coords_kernel(path_start: IntArray, path: IntArray, cu: IntArray, cv: IntArray,
+                        pos: FloatArray, xy: FloatArray
+                        ) -> tuple[FloatArray, IntArray]:  # pragma: no cover - compiled
+    m = cu.size
+    out = np.empty((path.size + 2 * m, 2))
+    start = np.empty(m + 1, dtype=np.int64)
+    start[0] = 0
+    n = 0
+    for e in range(m):
+        count = path_start[e + 1] - path_start[e] + 2
+        first = n
+        px, py = 0.0, 0.0
+        for k in range(count):
+            if k == 0:
+                x, y = pos[cu[e], 0], pos[cu[e], 1]
+            elif k == count - 1:
+                x, y = pos[cv[e], 0], pos[cv[e], 1]
+            else:
+                node = path[path_start[e] + k - 1]
+                x, y = xy[node, 0], xy[node, 1]
+            if k == 0 or abs(x - px) > 1e-6 or abs(y - py) > 1e-6:
+                out[n, 0], out[n, 1] = x, y
+                n += 1
+            px, py = x, y
+        if n - first == 1:  # a self-loop reduced to one point: keep two
+            out[n, 0], out[n, 1] = out[first, 0], out[first, 1]
+            n += 1
+        start[e + 1] = n
+    return out[:n].copy(), start
 
 
 @numba.njit(cache=True)

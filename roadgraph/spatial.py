@@ -60,28 +60,52 @@ def build_grid(coords: FloatArray, offsets: IntArray, cell_m: float = CELL_M) ->
     """Bin every segment into the cells its bounding box meets."""
     if cell_m <= 0.0:
         raise ValueError(f"cell_m must be > 0, got {cell_m}")
-    first = np.ones(len(coords), dtype=bool)
-    first[offsets[1:-1] - 1] = False  # the last vertex of a polyline starts no segment
-    if len(coords):
-        first[-1] = False
-    seg = np.flatnonzero(first).astype(np.int64)
-    a, b = coords[seg], coords[seg + 1]
-    lo = np.floor(np.minimum(a, b) / cell_m).astype(np.int64)
-    hi = np.floor(np.maximum(a, b) / cell_m).astype(np.int64)
-    if seg.size and (np.abs(lo).max() >= _OFF or np.abs(hi).max() >= _OFF):
+    coords = np.ascontiguousarray(coords, dtype=np.float64)
+    if len(coords) and float(np.abs(coords).max()) / cell_m >= _OFF - 1:
         raise ValueError("coordinates too large for the grid")
-    nx_, ny = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
-    count = nx_ * ny
-    owner = np.repeat(np.arange(seg.size), count)
-    k = np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)
-    i = lo[owner, 0] + k % nx_[owner]
-    j = lo[owner, 1] + k // nx_[owner]
-    key = cell_key(i, j)
-    order = np.lexsort((seg[owner], key))
-    key, segments = key[order], seg[owner][order]
-    keys, begin = np.unique(key, return_index=True)
+    key, segments = _bin_segments(coords, np.ascontiguousarray(offsets, dtype=np.int64),
+                                  cell_m)
+    order = np.argsort(key, kind="stable")  # segments were binned in order: ties stay so
+    key = key[order]
+    segments = segments[order]
+    del order
+    first = np.ones(len(key), dtype=bool)
+    first[1:] = key[1:] != key[:-1]
+    begin = np.flatnonzero(first)
     start = np.append(begin, key.size).astype(np.int64)
-    return GridArrays(cell_m, keys.astype(np.int64), start, segments.astype(np.int64))
+    return GridArrays(cell_m, key[begin], start, segments)
+
+
+@numba.njit(cache=True)
+def _bin_segments(coords: FloatArray, offsets: IntArray, cell_m: float
+                  ) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled
+    """(cell key, segment) for each cell each segment's bounding box meets, segment by
+    segment (two passes: count, then fill)."""
+    total = 0
+    for p in range(offsets.size - 1):
+        for s in range(offsets[p], offsets[p + 1] - 1):
+            i0, i1, j0, j1 = _cell_range(coords, s, cell_m)
+            total += (i1 - i0 + 1) * (j1 - j0 + 1)
+    key = np.empty(total, dtype=np.int64)
+    seg = np.empty(total, dtype=np.int64)
+    n = 0
+    for p in range(offsets.size - 1):
+        for s in range(offsets[p], offsets[p + 1] - 1):
+            i0, i1, j0, j1 = _cell_range(coords, s, cell_m)
+            for i in range(i0, i1 + 1):
+                for j in range(j0, j1 + 1):
+                    key[n] = (i + _OFF) * (2 * _OFF) + (j + _OFF)
+                    seg[n] = s
+                    n += 1
+    return key, seg
+
+
+@numba.njit(cache=True)
+def _cell_range(coords: FloatArray, s: int, cell_m: float
+                ) -> tuple[int, int, int, int]:  # pragma: no cover - compiled
+    ax, ay, bx, by = coords[s, 0], coords[s, 1], coords[s + 1, 0], coords[s + 1, 1]
+    return (math.floor(min(ax, bx) / cell_m), math.floor(max(ax, bx) / cell_m),
+            math.floor(min(ay, by) / cell_m), math.floor(max(ay, by) / cell_m))
 
 
 class SegmentGrid:
