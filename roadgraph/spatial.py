@@ -48,7 +48,7 @@ class GridArrays(NamedTuple):
     cell_m: float
     keys: IntArray
     start: IntArray  # len(keys) + 1
-    segments: IntArray  # first vertex of each segment, cell after cell
+    segments: npt.NDArray[np.int32] | IntArray  # first vertex of each segment, cell by cell
 
 
 def cell_key(i: IntArray | int, j: IntArray | int) -> IntArray | int:
@@ -73,6 +73,8 @@ def build_grid(coords: FloatArray, offsets: IntArray, cell_m: float = CELL_M) ->
     first[1:] = key[1:] != key[:-1]
     begin = np.flatnonzero(first)
     start = np.append(begin, key.size).astype(np.int64)
+    if len(coords) < 2**31:  # the largest array of a big map: half the size
+        segments = segments.astype(np.int32)
     return GridArrays(cell_m, key[begin], start, segments)
 
 
@@ -117,8 +119,10 @@ class SegmentGrid:
         self._offsets = np.ascontiguousarray(offsets, dtype=np.int64)
         self.grid = grid if grid is not None else build_grid(self._coords, self._offsets)
         self.cell_m = self.grid.cell_m
-        if len(self._coords):
-            self._extent_m = float(np.ptp(self._coords, axis=0).max())
+        keys = self.grid.keys
+        if keys.size:  # from the cells (the vertices are many: a pass over them costs 1 s)
+            i, j = keys // (2 * _OFF), keys % (2 * _OFF)
+            self._extent_m = float(max(np.ptp(i), np.ptp(j)) + 1) * self.cell_m
         else:
             self._extent_m = 0.0
 
