@@ -43,16 +43,17 @@ import resource, sys, time
 from pathlib import Path
 from roadgraph import import_map
 t = time.perf_counter()
-import_map(Path(sys.argv[2]), source=Path(sys.argv[1]))
+import_map(Path(sys.argv[2]), source=Path(sys.argv[1]), builder=sys.argv[3])
 print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 """
 
 
-def bench_import(source: Path, db: Path, runs: int) -> dict[str, float]:
+def bench_import(source: Path, db: Path, runs: int, builder: str = "auto") -> dict[str, float]:
     """Import in a fresh process each run (peak RSS of that process; time without start-up)."""
     times, peaks = [], []
     for _ in tqdm(range(runs), desc="import runs", leave=False):
-        out = subprocess.run([sys.executable, "-c", _IMPORT_CHILD, str(source), str(db)],
+        out = subprocess.run([sys.executable, "-c", _IMPORT_CHILD, str(source), str(db),
+                              builder],
                              capture_output=True, text=True, check=True).stdout.split()
         times.append(float(out[0]))
         peaks.append(int(out[1]) / 1024.0)
@@ -195,7 +196,7 @@ def scaling(tiles: list[int], out_dir: Path) -> None:
     drive: Path | None = None
     for n, source in zip(tiles, sources):
         db = source.with_suffix("").with_suffix(".db")
-        imp = bench_import(source, db, 1)
+        imp = bench_import(source, db, 1, builder="arrays")
         if drive is None:
             drive = _drive_file(db, out_dir / "drive.json")
         out = subprocess.run([sys.executable, "-c", _SERVICE_CHILD, str(db), str(drive)],

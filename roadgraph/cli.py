@@ -19,7 +19,7 @@ from typing import Any
 from roadgraph.build import DEFAULT_CONSOLIDATE_M, MapInfo
 from roadgraph.errors import RoadGraphError
 from roadgraph.geojson import feature_collection
-from roadgraph.importer import BUILDERS, import_map, import_warnings
+from roadgraph.importer import AUTO_OSMNX_MAX_NODES, BUILDERS, import_map, import_warnings
 from roadgraph.osm import NETWORK_TYPES
 from roadgraph.store import read_edges_in_bbox, read_info, read_network
 
@@ -91,10 +91,11 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar="M",
                      help="merge intersection nodes within M metres into one (0 disables); "
                           "default: %(default)s")
-    imp.add_argument("--builder", choices=BUILDERS, default="arrays",
-                     help="for a local OSM file: roadgraph's array builder (any size, bounded "
-                          "memory) or osmnx's (the same graph on small maps; about 2 kB of "
-                          "memory per OSM node); default: %(default)s")
+    imp.add_argument("--builder", choices=BUILDERS, default="auto",
+                     help="for a local OSM file: osmnx's (about 2 kB of memory per OSM node) "
+                          "or roadgraph's array builder (any size, bounded memory; the same "
+                          "graph up to node numbers); auto: osmnx up to "
+                          f"{AUTO_OSMNX_MAX_NODES:,} road nodes; default: %(default)s")
     imp.add_argument("--json", action="store_true", help="print the map summary as JSON")
     imp.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
 

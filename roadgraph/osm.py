@@ -175,8 +175,7 @@ def read_osm(path: Path, network: str = "drive", *, progress: bool = False,
     ``stage`` is called with the name of each step as it starts (the importer's progress bar).
     """
     roads, report = read_roads(path, network, progress=progress, stage=stage)
-    (stage or (lambda _: None))("building the raw graph (osmnx)")
-    return OsmRead(graph=_graph_from_pieces(path, roads), report=report)
+    return OsmRead(graph=graph_from_roads(path, roads), report=report)
 
 
 def read_roads(path: Path, network: str = "drive", *, progress: bool = False,
@@ -596,7 +595,7 @@ def _clip(ways: _Ways, refs: IntArray, node_ids: IntArray, lonlat: FloatArray
     return roads, cut, outside, int(lost.sum())
 
 
-def _graph_from_pieces(path: Path, roads: RoadPieces) -> nx.MultiDiGraph:
+def graph_from_roads(path: Path, roads: RoadPieces) -> nx.MultiDiGraph:
     """osmnx's raw graph of the pieces; each piece is a way of its own, numbered 1, 2, ..."""
     import osmnx as ox  # slow to import (1 s): the service, which never imports, goes without
 
