@@ -27,7 +27,7 @@ import numpy as np
 
 from roadgraph.build import EdgeRecord, NodeRecord
 from roadgraph.geometry import FloatArray
-from roadgraph.spatial import GridArrays, IntArray, build_grid
+from roadgraph.spatial import GridArrays, IndexArray, IntArray, build_grid
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,7 +56,7 @@ class GraphArrays:
     grid_cell_m: float
     grid_keys: IntArray
     grid_start: IntArray
-    grid_segments: IntArray
+    grid_segments: IndexArray
 
     @property
     def grid(self) -> GridArrays:

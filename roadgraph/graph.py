@@ -21,10 +21,10 @@ import networkx as nx
 import numba
 import numpy as np
 
+from roadgraph.arrays import GraphArrays, arrays_from_records
 from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork, network_from_projected
 from roadgraph.errors import RoadGraphError
 from roadgraph.geometry import FloatArray, LocalFrame, project_onto_polyline, turn_angle_rad
-from roadgraph.arrays import GraphArrays, arrays_from_records
 from roadgraph.spatial import IntArray, NearPolylines, SegmentGrid
 from roadgraph.store import EdgeRows, read_arrays
 
@@ -301,7 +301,7 @@ class _Records(Sequence[_R]):
 
 @numba.njit(cache=True, nogil=True)
 def _find_node(node_id: int, ids: IntArray) -> int:  # pragma: no cover - compiled
-    i = np.searchsorted(ids, node_id)
+    i = int(np.searchsorted(ids, node_id))
     return i if i < ids.size and ids[i] == node_id else -1
 
 

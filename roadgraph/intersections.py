@@ -29,9 +29,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
+import numpy.typing as npt
 import shapely
 from pyproj import CRS
 from scipy.sparse import coo_matrix
@@ -44,6 +46,8 @@ from roadgraph.errors import NoDrivableRoadError
 from roadgraph.geometry import FloatArray, LocalFrame, unique_sorted, utm_crs_for
 from roadgraph.osm import WAY_TAGS, RoadPieces
 from roadgraph.spatial import IntArray
+
+BoolArray = npt.NDArray[np.bool_]
 
 _ONEWAY = frozenset({"yes", "true", "1", "-1", "reverse", "T", "F"})
 _REVERSED = frozenset({"-1", "reverse", "T"})
@@ -127,7 +131,7 @@ def _centre(lonlat: FloatArray) -> tuple[float, float]:
 
 
 # --- 1. raw graph -----------------------------------------------------------------------------
-def way_directions(tags: list[tuple[str | None, ...]]) -> tuple[IntArray, IntArray]:
+def way_directions(tags: list[tuple[str | None, ...]]) -> tuple[BoolArray, BoolArray]:
     """Per way: one-way (osmnx's values, or a roundabout), and reversed (``oneway=-1``)."""
     oneway = np.array([t[_TAG["oneway"]] in _ONEWAY or t[_TAG["junction"]] == "roundabout"
                        for t in tags], dtype=bool)
@@ -164,7 +168,7 @@ def raw_edges(roads: RoadPieces) -> tuple[IntArray, IntArray, IntArray]:
 
 
 # --- 2. simplification --------------------------------------------------------------------------
-def endpoints(u: IntArray, v: IntArray, n: int) -> IntArray:
+def endpoints(u: IntArray, v: IntArray, n: int) -> BoolArray:
     """osmnx's endpoint rules 1-3 per node (bool array)."""
     out_deg = np.bincount(u, minlength=n)
     in_deg = np.bincount(v, minlength=n)
@@ -175,16 +179,18 @@ def endpoints(u: IntArray, v: IntArray, n: int) -> IntArray:
     neighbours = np.bincount(pairs // n, minlength=n) + np.bincount(pairs % n, minlength=n)
     degree = in_deg + out_deg
     through = (neighbours == 2) & ((degree == 2) | (degree == 4))
-    return loop | (out_deg == 0) | (in_deg == 0) | ~through
+    ends: BoolArray = loop | (out_deg == 0) | (in_deg == 0) | ~through
+    return ends
 
 
 def _components(u: IntArray, v: IntArray, n: int) -> IntArray:
     graph = coo_matrix((np.ones(len(u), dtype=np.int8), (u, v)), shape=(n, n))
-    return connected_components(graph, directed=False)[1].astype(np.int64)
+    labels: IntArray = connected_components(graph, directed=False)[1].astype(np.int64)
+    return labels
 
 
-def _anchor_rings(is_end: IntArray, u: IntArray, v: IntArray, n: int
-                  ) -> tuple[IntArray, IntArray]:
+def _anchor_rings(is_end: BoolArray, u: IntArray, v: IntArray, n: int
+                  ) -> tuple[BoolArray, BoolArray]:
     """Endpoints, with the smallest node of each component that has none (a lone ring); and
     those anchors alone."""
     label = _components(u, v, n)
@@ -232,8 +238,9 @@ def simplify(u: IntArray, v: IntArray, way: IntArray, n: int) -> tuple[_Edges, I
     return _remove_rings(edges, np.flatnonzero(~removed), anchors, n)
 
 
-def _merge_edges(u: IntArray, v: IntArray, way: IntArray, keep_raw: IntArray, paths: IntArray,
-                 path_start: IntArray, path_edges: IntArray, keep_path: IntArray) -> _Edges:
+def _merge_edges(u: IntArray, v: IntArray, way: IntArray, keep_raw: BoolArray,
+                 paths: IntArray, path_start: IntArray, path_edges: IntArray,
+                 keep_path: BoolArray) -> _Edges:
     """The simplified graph's edges: raw edges between kept nodes, then the merged paths."""
     raw = np.flatnonzero(keep_raw)
     counts = np.diff(path_start)
@@ -255,7 +262,7 @@ def _merge_edges(u: IntArray, v: IntArray, way: IntArray, keep_raw: IntArray, pa
                   ways.astype(np.int64))
 
 
-def _remove_rings(edges: _Edges, kept: IntArray, anchors: IntArray, n: int
+def _remove_rings(edges: _Edges, kept: IntArray, anchors: BoolArray, n: int
                   ) -> tuple[_Edges, IntArray]:
     """osmnx's ``remove_rings`` on the simplified graph: components without an endpoint go
     (a node that was an endpoint before stays one: roadgraph's ring anchors)."""
@@ -282,14 +289,15 @@ def _select(edges: _Edges, k: IntArray) -> _Edges:
 
 
 @numba.njit(cache=True)
-def _walk_paths(ends: IntArray, is_end: IntArray, start: IntArray, succ: IntArray,
+def _walk_paths(ends: IntArray, is_end: BoolArray, start: IntArray, succ: IntArray,
                 first: IntArray) -> tuple[IntArray, IntArray, IntArray]:  # pragma: no cover
     """osmnx's ``_build_path`` from every endpoint through each successor that is not one:
     the paths' nodes (rows), and per consecutive pair the raw edge whose tags it takes."""
-    n = is_end.size
-    mark = np.full(n, -1, dtype=np.int64)
-    nodes = []
-    edges = []
+    mark = np.full(is_end.size, -1, dtype=np.int64)
+    nodes = [np.int64(0)]
+    edges = [np.int64(0)]
+    nodes.clear()
+    edges.clear()
     bounds = [0]
     walk = 0
     for e in ends:
@@ -303,45 +311,44 @@ def _walk_paths(ends: IntArray, is_end: IntArray, start: IntArray, succ: IntArra
             mark[s] = walk
             for k1 in range(start[s], start[s + 1]):
                 t = succ[k1]
-                if mark[t] == walk:
-                    continue
-                path.append(t)
-                pe.append(first[k1])
-                mark[t] = walk
-                cur = t
-                while not is_end[cur]:
-                    nxt = -1
-                    nk = -1
-                    count = 0
-                    for k2 in range(start[cur], start[cur + 1]):
-                        w = succ[k2]
-                        if mark[w] != walk:
-                            count += 1
-                            nxt = w
-                            nk = k2
-                    if count == 1:
-                        path.append(nxt)
-                        pe.append(first[nk])
-                        mark[nxt] = walk
-                        cur = nxt
-                    elif count == 0:
-                        for k3 in range(start[cur], start[cur + 1]):
-                            if succ[k3] == e:
-                                path.append(e)
-                                pe.append(first[k3])
-                                break
-                        break
-                    else:
-                        raise ValueError("impossible simplify pattern")
-                break
+                if mark[t] != walk:
+                    path.append(t)
+                    pe.append(first[k1])
+                    mark[t] = walk
+                    _follow(t, e, walk, path, pe, mark, is_end, start, succ, first)
+                    break
             walk += 1
-            for p in path:
-                nodes.append(p)
-            for q in pe:
-                edges.append(q)
+            nodes.extend(path)
+            edges.extend(pe)
             bounds.append(len(nodes))
     return (np.array(nodes, dtype=np.int64), np.array(bounds, dtype=np.int64),
             np.array(edges, dtype=np.int64))
+
+
+@numba.njit(cache=True)
+def _follow(cur: int, e: int, walk: int, path: list[int], pe: list[int], mark: IntArray,
+            is_end: BoolArray, start: IntArray, succ: IntArray,
+            first: IntArray) -> None:  # pragma: no cover - compiled
+    """The rest of ``_build_path``'s walk from ``cur`` to the next endpoint, appended."""
+    while not is_end[cur]:
+        nxt, nk, count = -1, -1, 0
+        for k2 in range(start[cur], start[cur + 1]):
+            if mark[succ[k2]] != walk:
+                count += 1
+                nxt, nk = succ[k2], k2
+        if count > 1:
+            raise ValueError("impossible simplify pattern")
+        if count == 0:  # back to the start (a loop), or osmnx's "unexpected pattern"
+            for k3 in range(start[cur], start[cur + 1]):
+                if succ[k3] == e:
+                    path.append(e)
+                    pe.append(first[k3])
+                    break
+            return
+        path.append(nxt)
+        pe.append(first[nk])
+        mark[nxt] = walk
+        cur = nxt
 
 
 # --- 4. consolidation -----------------------------------------------------------------------------
@@ -451,15 +458,17 @@ def _gather_rows(coords: FloatArray, start: IntArray, order: IntArray) -> FloatA
     counts = np.diff(start)[order]
     first = start[:-1][order]
     offset = np.repeat(first - (np.cumsum(counts) - counts), counts)
-    return coords[np.arange(int(counts.sum())) + offset]
+    out: FloatArray = coords[np.arange(int(counts.sum())) + offset]
+    return out
 
 
 def _edge_coords(edges: _Edges, cu: IntArray, cv: IntArray, pos: FloatArray, xy: FloatArray
                  ) -> tuple[FloatArray, IntArray]:
     """Each edge's vertices: its new end positions around its path, consecutive duplicates
     (within 1 µm) dropped; a loop of one point keeps it twice."""
-    return _edge_coords_kernel(edges.path_start, edges.path, cu, cv, pos,
-                               np.ascontiguousarray(xy))
+    out: tuple[FloatArray, IntArray] = _edge_coords_kernel(
+        edges.path_start, edges.path, cu, cv, pos, np.ascontiguousarray(xy))
+    return out
 
 
 @numba.njit(cache=True)
@@ -586,11 +595,11 @@ def _attributes(roads: RoadPieces, edges: _Edges, order: IntArray, lonlat: Float
         if row is None:
             row = cache[values] = _merge_tags(values)
         rows.append(row)
-    cols = list(zip(*rows)) if rows else [()] * 7
+    cols: list[Any] = list(zip(*rows)) if rows else [()] * 7
     return EdgeAttributes(
-        osm_way_ids=ids, name=list(cols[0]), highway=list(cols[1]),  # type: ignore[arg-type]
-        oneway=list(cols[2]), maxspeed=list(cols[3]), lanes=list(cols[4]),  # type: ignore[arg-type]
-        tunnel=list(cols[5]), bridge=list(cols[6]), lonlat=lonlat)  # type: ignore[arg-type]
+        osm_way_ids=ids, name=list(cols[0]), highway=list(cols[1]),
+        oneway=list(cols[2]), maxspeed=list(cols[3]), lanes=list(cols[4]),
+        tunnel=list(cols[5]), bridge=list(cols[6]), lonlat=lonlat)
 
 
 def _merge_tags(values: tuple[tuple[str | None, ...], ...]) -> tuple[object, ...]:

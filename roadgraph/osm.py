@@ -28,7 +28,6 @@ import gzip
 import hashlib
 import io
 import logging
-import math
 import re
 import tempfile
 from array import array
@@ -132,9 +131,9 @@ class OsmRead:
 class _Ways:
     """Pass 1: the network's ways, their references (flat) and tags."""
 
-    ids: array = field(default_factory=lambda: array("q"))
-    start: array = field(default_factory=lambda: array("q", [0]))
-    refs: array = field(default_factory=lambda: array("q"))
+    ids: array[int] = field(default_factory=lambda: array("q"))
+    start: array[int] = field(default_factory=lambda: array("q", [0]))
+    refs: array[int] = field(default_factory=lambda: array("q"))
     tags: list[WayTags] = field(default_factory=list)
     other: Counter[str] = field(default_factory=Counter)  # highway class of non-network ways
     one_node: int = 0

@@ -25,6 +25,7 @@ import numpy.typing as npt
 from roadgraph.geometry import FloatArray
 
 IntArray = npt.NDArray[np.int64]
+IndexArray = npt.NDArray[np.int32] | npt.NDArray[np.int64]  # int32 when the values fit
 
 CELL_M = 100.0
 _OFF = 1 << 21  # cell indices are kept within +-2^21 (+-209,000 km with 100 m cells)
@@ -48,7 +49,7 @@ class GridArrays(NamedTuple):
     cell_m: float
     keys: IntArray
     start: IntArray  # len(keys) + 1
-    segments: npt.NDArray[np.int32] | IntArray  # first vertex of each segment, cell by cell
+    segments: IndexArray  # first vertex of each segment, cell by cell
 
 
 def cell_key(i: IntArray | int, j: IntArray | int) -> IntArray | int:
@@ -175,7 +176,7 @@ def _owner_of(vertex: int, offsets: IntArray) -> int:  # pragma: no cover - comp
 
 @numba.njit(cache=True, nogil=True)
 def _candidates(x_m: float, y_m: float, radius_m: float, cell_m: float, keys: IntArray,
-                start: IntArray, segments: IntArray, n_vertices: int,
+                start: IntArray, segments: IndexArray, n_vertices: int,
                 offsets: IntArray) -> IntArray:  # pragma: no cover - compiled
     """The segments in the cells the query's box meets, sorted, each once."""
     if not math.isfinite(radius_m):
@@ -236,7 +237,7 @@ def _segment_bearing(s: int, lo: int, hi: int, coords: FloatArray) -> float:  # 
 
 @numba.njit(cache=True, nogil=True)
 def _near(x_m: float, y_m: float, radius_m: float, limit: int, cell_m: float, keys: IntArray,
-          start: IntArray, segments: IntArray, coords: FloatArray, offsets: IntArray
+          start: IntArray, segments: IndexArray, coords: FloatArray, offsets: IntArray
           ) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled
     """Each owner's nearest segment within the radius, owners nearest first and at most
     ``limit`` of them (all when negative): the owners, and the rows of
