@@ -26,7 +26,7 @@ from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork, networ
 from roadgraph.errors import RoadGraphError
 from roadgraph.geometry import FloatArray, LocalFrame, project_onto_polyline, turn_angle_rad
 from roadgraph.spatial import IntArray, NearPolylines, SegmentGrid
-from roadgraph.store import EdgeRows, read_arrays
+from roadgraph.store import EdgeRows, read_arrays, read_network, schema_version
 
 _R = TypeVar("_R")
 
@@ -89,6 +89,8 @@ class RoadGraph:
     def open(cls, path: Path | str) -> RoadGraph:
         """Open a road-graph database written by ``roadgraph import`` (its arrays only)."""
         path = Path(path)
+        if schema_version(path) < 2:  # written before the arrays: from its rows, in memory
+            return cls(read_network(path), map_id=path.stem)
         info, arrays = read_arrays(path)
         return cls(map_id=path.stem, arrays=arrays, info=info, db=path)
 

@@ -43,7 +43,9 @@ from roadgraph.arrays import (
 from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork
 from roadgraph.errors import MapDatabaseError, SchemaVersionError
 
-SCHEMA_VERSION = 2  # 2: the arrays table (version 1 had none: re-import)
+SCHEMA_VERSION = 2  # 2: the arrays table
+# Versions this code reads: a version 1 database (no arrays) opens from its rows, slowly.
+READABLE_VERSIONS = (1, 2)
 _PART_BYTES = 900 << 20  # under SQLite's default largest blob (10^9 bytes)
 
 _SCHEMA = """
@@ -192,10 +194,20 @@ def _insert_arrays(conn: sqlite3.Connection, a: GraphArrays) -> None:
              data[p:p + _PART_BYTES]) for k, p in enumerate(parts)])
 
 
+def schema_version(path: Path) -> int:
+    """The database's schema version (one this code reads)."""
+    with _open_checked(path) as conn:
+        version: int = conn.execute("PRAGMA user_version").fetchone()[0]
+        return version
+
+
 def read_arrays(path: Path) -> tuple[MapInfo, GraphArrays]:
     """The map's summary and its compact arrays (what a service opens)."""
     with _open_checked(path) as conn:
         info = _read_info(conn)
+        if conn.execute("PRAGMA user_version").fetchone()[0] < 2:
+            raise MapDatabaseError(f"{path}: schema version 1 has no arrays; open it with "
+                                   "RoadGraph.open, or re-import the map")
         parts: dict[str, list[tuple[str, str, bytes]]] = {}
         for name, dtype, shape, data in conn.execute(
                 "SELECT name, dtype, shape, data FROM arrays ORDER BY name, part"):
@@ -293,7 +305,7 @@ def _open_checked(path: Path) -> Iterator[sqlite3.Connection]:
             tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
             if not {"meta", "nodes", "edges"} <= tables:
                 raise MapDatabaseError(f"{path}: not a road-graph database (tables missing)")
-            if version != SCHEMA_VERSION:
+            if version not in READABLE_VERSIONS:
                 raise SchemaVersionError(
                     f"{path}: schema version {version}, this navsvc reads version "
                     f"{SCHEMA_VERSION}; re-import the map with `roadgraph import`"
