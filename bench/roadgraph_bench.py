@@ -31,7 +31,7 @@ import networkx as nx
 import numpy as np
 import osmnx as ox
 import shapely
-from report import median_us, print_table, write_json
+from report import RESULTS, median_us, print_table, write_json
 from tqdm import tqdm
 
 from roadgraph import EdgeKey, RoadGraph
@@ -187,38 +187,61 @@ def _drive_file(small_db: Path, out: Path) -> Path:
     return out
 
 
-def scaling(tiles: list[int], out_dir: Path) -> None:
-    """The scaling table (see the module docstring)."""
+def _service(db: Path, drive: Path) -> dict[str, float]:
+    out = subprocess.run([sys.executable, "-c", _SERVICE_CHILD, str(db), str(drive)],
+                         capture_output=True, text=True, check=True).stdout
+    result: dict[str, float] = json.loads(out.splitlines()[-1])
+    return result
+
+
+def scaling(tiles: list[int], out_dir: Path, rounds: int, reuse: bool) -> None:
+    """The scaling table (see the module docstring). The service is measured ``rounds``
+    times per map, the maps taken in turn in each round (this machine's load changes by the
+    minute: a map measured only while it was busy would look slower), and the median kept."""
     from big_maps import build
 
     sources = build(tiles, [ROOT / "maps" / "monaco.osm.gz"], out_dir)
-    rows, results = [], []
-    drive: Path | None = None
-    for n, source in zip(tiles, sources):
-        db = source.with_suffix("").with_suffix(".db")
-        imp = bench_import(source, db, 1, builder="arrays")
-        if drive is None:
-            drive = _drive_file(db, out_dir / "drive.json")
-        out = subprocess.run([sys.executable, "-c", _SERVICE_CHILD, str(db), str(drive)],
-                             capture_output=True, text=True, check=True).stdout
-        r = {"tiles": n, "source": source.name,
-             "source_mib": source.stat().st_size / 2**20,
-             "db_mib": db.stat().st_size / 2**20, **imp, **json.loads(out.splitlines()[-1])}
-        results.append(r)
-        small = results[0]
+    dbs = [source.with_suffix("").with_suffix(".db") for source in sources]
+    previous = {}
+    if reuse and (RESULTS / "roadgraph_scaling.json").exists():
+        previous = {m["tiles"]: m for m in json.loads(
+            (RESULTS / "roadgraph_scaling.json").read_text())["maps"]}
+    imports = []
+    for n, source, db in zip(tiles, sources, dbs):
+        if reuse and db.exists() and n in previous:
+            imports.append({k: previous[n][k] for k in
+                            ("import_s_median", "import_peak_rss_mib_median")})
+        else:
+            imports.append(bench_import(source, db, 1, builder="arrays"))
+        print(f"{source.name}: imported", flush=True)
+    drive = _drive_file(dbs[0], out_dir / "drive.json")
+    runs: list[list[dict[str, float]]] = [[] for _ in tiles]
+    for r in range(rounds):
+        for k, db in enumerate(dbs):
+            runs[k].append(_service(db, drive))
+        print(f"service round {r + 1}/{rounds} done", flush=True)
+    results = []
+    for n, source, db, imp, measured in zip(tiles, sources, dbs, imports, runs):
+        med = {key: statistics.median(m[key] for m in measured) for key in measured[0]}
+        results.append({"tiles": n, "source": source.name,
+                        "source_mib": source.stat().st_size / 2**20,
+                        "db_mib": db.stat().st_size / 2**20, **imp, **med,
+                        "service_rounds": rounds})
+    small = results[0]
+    rows = []
+    for r in results:
         r["offline_speed_ratio_to_small"] = r["offline_points_per_s"] / small[
             "offline_points_per_s"]
         r["online_speed_ratio_to_small"] = r["online_packets_per_s"] / small[
             "online_packets_per_s"]
-        rows.append([f"{r['edges']:,}", f"{r['nodes']:,}", f"{r['source_mib']:.1f}",
+        rows.append([f"{int(r['edges']):,}", f"{int(r['nodes']):,}", f"{r['source_mib']:.1f}",
                      r["import_s_median"], f"{r['import_peak_rss_mib_median']:.0f}",
                      r["open_s"], f"{r['rss_after_open_mib']:.0f}",
                      f"{r['rss_after_open_mib'] - r['rss_before_open_mib']:.0f}",
                      r["edges_near_median_us"], r["nearest_edge_median_us"],
                      r["offline_speed_ratio_to_small"], r["online_speed_ratio_to_small"]])
-        print(f"{source.name}: {r['edges']:,} edges done", flush=True)
     print_table("Road graph against map size (Monaco tiled; one process per import and per "
-                "service open)",
+                f"service open; service figures: median of {rounds} rounds)",
                 ["edges", "nodes", "pbf MiB", "import s", "import peak MiB", "open s",
                  "service RSS MiB", "of which map", "near r=50 µs", "nearest µs",
                  "offline speed ×", "online speed ×"], rows)
@@ -237,6 +260,9 @@ def main() -> None:
                         help="the table against map size on tiled maps (see above)")
     parser.add_argument("--tiles", type=int, nargs="+", default=[1, 16, 128, 1024, 3600])
     parser.add_argument("--cache", type=Path, default=ROOT / "bench" / ".cache" / "big_maps")
+    parser.add_argument("--rounds", type=int, default=3, help="service measurements per map")
+    parser.add_argument("--reuse-imports", action="store_true",
+                        help="keep the databases and import figures of the last --scaling run")
     parser.add_argument("--map-source", type=Path, default=ROOT / "maps" / "monaco.osm.gz",
                         help="OSM extract to import (default: the bundled sample map)")
     parser.add_argument("--points", type=int, default=100_000, help="query points per set")
@@ -246,7 +272,7 @@ def main() -> None:
     parser.add_argument("--import-runs", type=int, default=3)
     args = parser.parse_args()
     if args.scaling:
-        scaling(args.tiles, args.cache)
+        scaling(args.tiles, args.cache, args.rounds, args.reuse_imports)
         return
 
     with tempfile.TemporaryDirectory() as tmp:
