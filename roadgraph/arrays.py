@@ -1,8 +1,9 @@
 """The compact arrays a road graph is queried through (pure).
 
 A map of two million edges held as Python records (one :class:`EdgeRecord` and two small
-NumPy arrays an edge) took several gigabytes and a minute to load; as flat arrays it takes a
-few hundred megabytes and loads in a second. :class:`GraphArrays` holds what the queries of
+NumPy arrays an edge) would take several gigabytes and minutes to load; as flat arrays it
+takes about 600 MB (300 bytes an edge) and opens in one to two seconds
+(``bench/roadgraph_bench.py --scaling``). :class:`GraphArrays` holds what the queries of
 :class:`roadgraph.RoadGraph` need, and nothing a user reads only now and then (names, tags,
 WGS84 geometry: those stay in the database's rows):
 
