@@ -4,6 +4,7 @@ Knows nothing about vehicles. ``roadgraph import`` builds a database (osm → bu
 services open it with :meth:`RoadGraph.open` and query it.
 """
 
+from roadgraph.arrays import GraphArrays
 from roadgraph.build import EdgeRecord, MapInfo, NodeRecord, RoadNetwork
 from roadgraph.errors import (
     MapDatabaseError,
@@ -17,7 +18,7 @@ from roadgraph.graph import EdgeKey, EdgeProjection, RoadGraph
 from roadgraph.importer import import_map
 
 __all__ = [
-    "EdgeKey", "EdgeProjection", "EdgeRecord", "LocalFrame", "MapDatabaseError", "MapInfo",
-    "MapSourceError", "NoDrivableRoadError", "NodeRecord", "RoadGraph",
+    "EdgeKey", "EdgeProjection", "EdgeRecord", "GraphArrays", "LocalFrame", "MapDatabaseError",
+    "MapInfo", "MapSourceError", "NoDrivableRoadError", "NodeRecord", "RoadGraph",
     "RoadGraphError", "RoadNetwork", "SchemaVersionError", "import_map",
 ]

@@ -19,7 +19,7 @@ from typing import Any
 from roadgraph.build import DEFAULT_CONSOLIDATE_M, MapInfo
 from roadgraph.errors import RoadGraphError
 from roadgraph.geojson import feature_collection
-from roadgraph.importer import import_map, import_warnings
+from roadgraph.importer import AUTO_OSMNX_MAX_NODES, BUILDERS, import_map, import_warnings
 from roadgraph.osm import NETWORK_TYPES
 from roadgraph.store import read_edges_in_bbox, read_info, read_network
 
@@ -91,6 +91,11 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar="M",
                      help="merge intersection nodes within M metres into one (0 disables); "
                           "default: %(default)s")
+    imp.add_argument("--builder", choices=BUILDERS, default="auto",
+                     help="for a local OSM file: osmnx's (about 2 kB of memory per OSM node) "
+                          "or roadgraph's array builder (any size, bounded memory; the same "
+                          "graph up to node numbers); auto: osmnx up to "
+                          f"{AUTO_OSMNX_MAX_NODES:,} road nodes; default: %(default)s")
     imp.add_argument("--json", action="store_true", help="print the map summary as JSON")
     imp.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
 
@@ -127,7 +132,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
     try:
         info = import_map(args.output, source=args.source, place=args.place, bbox=args.bbox,
                           network=args.network, consolidate_m=args.consolidate_m,
-                          progress=not args.quiet)
+                          progress=not args.quiet, builder=args.builder)
     except ValueError as exc:  # the importer's own argument check
         print(f"roadgraph: error: {exc}", file=sys.stderr)
         return 2
@@ -185,7 +190,8 @@ def _print_info(info: MapInfo, db: Path, *, as_json: bool) -> None:
         *_summary_rows(info),
         ("longest edge", f"{info.longest_edge_m:.1f} m"),
         ("max adjacent-node distance", f"{info.max_adjacent_node_distance_m:.1f} m"),
-        ("built", f"{info.created_utc or '-'} with osmnx {info.osmnx_version}"),
+        ("built", f"{info.created_utc or '-'} with "
+                  f"{'osmnx ' + info.osmnx_version if info.osmnx_version else 'roadgraph'}"),
     ]
     width = max(len(k) for k, _ in rows)
     for key, value in rows:

@@ -127,3 +127,26 @@ def test_console_script_help() -> None:
                             capture_output=True, text=True, check=True)
     for option in ("--place", "--bbox", "--network", "--consolidate-m", "--json", "--quiet"):
         assert option in result.stdout
+
+
+def test_builder_option(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                        sample_db: Path) -> None:
+    """``--builder arrays`` on the sample map: the same summary as osmnx's (the default for
+    a map this small), and ``info`` says which built it."""
+    db = tmp_path / "arrays.db"
+    assert main(["import", str(SAMPLE_OSM), "-o", str(db), "--builder", "arrays",
+                 "--json"]) == 0
+    mine = json.loads(capsys.readouterr().out)
+    assert main(["info", str(sample_db), "--json"]) == 0
+    theirs = json.loads(capsys.readouterr().out)
+    for key in ("node_count", "edge_count", "junction_count", "dead_end_count",
+                "osm_ways_kept", "osm_missing_node_refs", "epsg", "bbox_wgs84"):
+        assert mine[key] == pytest.approx(theirs[key]), key
+    assert mine["road_length_m"] == pytest.approx(theirs["road_length_m"], abs=1e-3)
+    assert mine["osmnx_version"] == "" and theirs["osmnx_version"]
+    assert main(["info", str(db)]) == 0
+    assert "with roadgraph" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as usage:
+        main(["import", str(SAMPLE_OSM), "-o", str(db), "--builder", "networkx"])
+    assert usage.value.code == 2
+    assert "invalid choice: 'networkx'" in capsys.readouterr().err

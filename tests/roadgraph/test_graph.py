@@ -1,4 +1,5 @@
 import math
+from pathlib import Path
 
 import networkx as nx
 import numpy as np
@@ -8,6 +9,7 @@ from hypothesis import strategies as st
 
 from roadgraph import EdgeKey, LocalFrame, RoadGraph, RoadGraphError
 from roadgraph.geometry import project_onto_polyline
+from roadgraph.store import read_network
 
 FRAME = LocalFrame.for_point(7.42, 43.73)
 
@@ -163,3 +165,59 @@ def test_distances_from_agrees_with_networkx(sample_graph: RoadGraph, pick: int,
     assert found.keys() == expected.keys()
     for node, distance in expected.items():
         assert found[node] == pytest.approx(distance, abs=1e-9)
+
+
+def test_opened_graph_answers_as_the_graph_of_its_records(sample_db: Path) -> None:
+    """The service's graph (compact arrays, records read from the database on demand) against
+    one built from every record in memory: the same answers."""
+    opened = RoadGraph.open(sample_db)
+    held = RoadGraph(read_network(sample_db))
+    assert len(opened.edges) == len(held.edges) and len(opened.nodes) == len(held.nodes)
+    assert list(opened.nodes) == list(held.nodes)
+    assert all(a.same_as(b, tol_m=0.0) for a, b in zip(opened.edges, held.edges))
+    rng = np.random.default_rng(3)
+    xs = np.array([n.x_m for n in held.nodes])
+    ys = np.array([n.y_m for n in held.nodes])
+    for x, y in zip(rng.uniform(xs.min(), xs.max(), 200), rng.uniform(ys.min(), ys.max(), 200)):
+        assert opened.edges_near(x, y, 80.0) == held.edges_near(x, y, 80.0)
+    ids = [n.id for n in held.nodes]
+    for node in ids[::7]:
+        for mine, theirs in ((opened.out_edges(node), held.out_edges(node)),
+                             (opened.in_edges(node), held.in_edges(node))):
+            assert len(mine) == len(theirs)
+            assert all(a.same_as(b, tol_m=0.0) for a, b in zip(mine, theirs))
+    for source, target in zip(ids[::11], ids[5::11]):
+        try:
+            expected = held.shortest_path(source, target)
+        except nx.NetworkXNoPath:
+            with pytest.raises(nx.NetworkXNoPath):
+                opened.shortest_path(source, target)
+            continue
+        assert opened.shortest_path(source, target) == expected
+
+
+def test_to_networkx_is_the_whole_graph(sample_graph: RoadGraph) -> None:
+    g = sample_graph.to_networkx()
+    assert g.number_of_nodes() == sample_graph.info.node_count
+    assert g.number_of_edges() == sample_graph.info.edge_count
+    e = sample_graph.edges[10]
+    assert g.edges[e.u, e.v, e.key]["length"] == e.length_m
+    n = sample_graph.nodes[3]
+    assert (g.nodes[n.id]["x"], g.nodes[n.id]["lat"]) == (n.x_m, n.lat_deg)
+
+
+def test_shortest_path_agrees_with_networkx(sample_graph: RoadGraph) -> None:
+    g = sample_graph.graph
+    ids = [n.id for n in sample_graph.nodes]
+    rng = np.random.default_rng(5)
+    checked = 0
+    for source, target in rng.choice(ids, (60, 2)).tolist():
+        try:
+            expected = nx.shortest_path_length(g, source, target, weight="length")
+        except nx.NetworkXNoPath:
+            continue
+        path = sample_graph.shortest_path(source, target)
+        assert sum(sample_graph.edge(e).length_m for e in path) == pytest.approx(expected)
+        assert all(a.v == b.u for a, b in zip(path[:-1], path[1:]))
+        checked += 1
+    assert checked > 30

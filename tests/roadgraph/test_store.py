@@ -98,3 +98,16 @@ def test_info_is_frozen_data(sample_db: Path) -> None:
     info = read_info(sample_db)
     with pytest.raises(dataclasses.FrozenInstanceError):
         info.node_count = 0  # type: ignore[misc]
+
+
+def test_a_version_1_database_still_opens(sample_db: Path, tmp_path: Path) -> None:
+    """Written before the arrays table: opened from its rows, with the same answers."""
+    old = tmp_path / "v1.db"
+    old.write_bytes(sample_db.read_bytes())
+    with sqlite3.connect(old) as conn:
+        conn.execute("DROP TABLE arrays")
+        conn.execute("PRAGMA user_version = 1")
+    graph, new = RoadGraph.open(old), RoadGraph.open(sample_db)
+    assert graph.info == new.info and len(graph.edges) == len(new.edges)
+    node = new.nodes[0]
+    assert graph.edges_near(node.x_m, node.y_m, 50.0) == new.edges_near(node.x_m, node.y_m, 50.0)
