@@ -11,8 +11,9 @@ from fastapi import Depends, HTTPException, Request, WebSocket
 from fastapi.security import APIKeyHeader
 
 from navsvc.api.settings import Settings
+from navsvc.errors import SessionNotFound
 from navsvc.metrics import Metrics
-from navsvc.session import SessionStore, key_bytes, owner_of
+from navsvc.session import LiveSession, SessionStore, key_bytes, owner_of
 from navsvc.web.feed import ViewerHub
 from roadgraph import RoadGraph
 
@@ -67,3 +68,22 @@ def websocket_state(websocket: WebSocket) -> AppState:
 
 StateDep = Annotated[AppState, Depends(get_state)]
 OwnerDep = Annotated[str, Depends(get_owner)]
+
+
+async def accept_session_socket(websocket: WebSocket,
+                                session_id: str) -> tuple[AppState, str, LiveSession] | None:
+    """Accept a session's WebSocket and check the caller's key (header or ``?api_key=``):
+    the app state, the key's owner and the session. None when refused: the socket is then
+    closed with 4401 (key) or 4404 (no such session for this key), a code and reason the
+    client can read, as it could not after a refused handshake."""
+    state = websocket_state(websocket)
+    await websocket.accept()
+    try:
+        owner = check_key(state, websocket.headers.get(API_KEY_HEADER)
+                          or websocket.query_params.get("api_key"))
+        return state, owner, state.store.get(session_id, owner)
+    except HTTPException as exc:
+        await websocket.close(code=4401, reason=str(exc.detail))
+    except SessionNotFound as exc:
+        await websocket.close(code=4404, reason=str(exc))
+    return None

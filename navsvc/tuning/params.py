@@ -141,8 +141,9 @@ BY_NAME = {p.name: p for p in TABLE}
 
 # The default selection: the noise and gating of the EKF (the default fusion mode) and the
 # matcher's two spreads (the heading-rate noise left it when the gyro became the filter's
-# input: it matters only without a gyro). These move the scores most on the harsh-urban drives; the rules and
-# fuzzy parameters matter only with their own GPS mode, so they are picked by name.
+# input: it matters only without a gyro). These move the scores most on the harsh-urban
+# drives; the rules and fuzzy parameters matter only with their own GPS mode, so they are
+# picked by name.
 DEFAULT_SET: tuple[str, ...] = (
     "fusion.gps_uere_m", "fusion.gps_bias_share", "fusion.gps_gate_scale",
     "fusion.gps_huber_nis", "fusion.process.accel_mps2", "fusion.gps_bias_tau_s",

@@ -27,7 +27,7 @@ from typing import Any
 
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
-from navsvc.api.deps import API_KEY_HEADER, AppState, check_key, websocket_state
+from navsvc.api.deps import AppState, accept_session_socket
 from navsvc.api.routes.sessions import ingest
 from navsvc.errors import BatchAlreadyApplied, SessionNotFound
 from navsvc.session import MAX_CLIENT_SEQ
@@ -62,18 +62,10 @@ class ReplyQueue:
 
 @router.websocket("/sessions/{session_id}/stream")
 async def stream(websocket: WebSocket, session_id: str) -> None:
-    state = websocket_state(websocket)
-    await websocket.accept()  # then refusals close with a code and reason the client can read
-    try:
-        owner = check_key(state, websocket.headers.get(API_KEY_HEADER)
-                          or websocket.query_params.get("api_key"))
-        state.store.get(session_id, owner)
-    except HTTPException as exc:
-        await websocket.close(code=4401, reason=str(exc.detail))
+    accepted = await accept_session_socket(websocket, session_id)
+    if accepted is None:
         return
-    except SessionNotFound as exc:
-        await websocket.close(code=4404, reason=str(exc))
-        return
+    state, owner, _ = accepted
     replies = ReplyQueue(state.settings.ws_queue_messages, state)
     sender = asyncio.create_task(replies.send_all(websocket))
     try:

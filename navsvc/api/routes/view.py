@@ -14,9 +14,8 @@ from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse
 
 from navsvc import __version__
-from navsvc.api.deps import API_KEY_HEADER, StateDep, check_key, websocket_state
+from navsvc.api.deps import StateDep, accept_session_socket
 from navsvc.api.models import ErrorBody
-from navsvc.errors import SessionNotFound
 from navsvc.web import STATIC_DIR
 from navsvc.web.feed import ViewerQueue
 from navsvc.wire.positions import position_json
@@ -58,18 +57,10 @@ def view_replay(state: StateDep) -> dict[str, Any]:
 @router.websocket("/sessions/{session_id}/view")
 async def view(websocket: WebSocket, session_id: str) -> None:
     """A viewer of a session: a snapshot, then an update per batch (navsvc.web.feed)."""
-    state = websocket_state(websocket)
-    await websocket.accept()
-    try:
-        owner = check_key(state, websocket.headers.get(API_KEY_HEADER)
-                          or websocket.query_params.get("api_key"))
-        session = state.store.get(session_id, owner)
-    except HTTPException as exc:
-        await websocket.close(code=4401, reason=str(exc.detail))
+    accepted = await accept_session_socket(websocket, session_id)
+    if accepted is None:
         return
-    except SessionNotFound as exc:
-        await websocket.close(code=4404, reason=str(exc))
-        return
+    state, _, session = accepted
     info = {"id": session.id, "vehicle_id": session.vehicle_id, "options": session.options}
 
     def snapshot() -> dict[str, Any]:

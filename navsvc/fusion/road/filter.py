@@ -508,7 +508,7 @@ class RoadFilter:
     def _jumps_back(self, t: float, innovation: Array, sigma_m: float) -> bool:
         """The fixes jump back by about a jump the filter followed not long ago: that jump
         was a non-line-of-sight run, and this is the track again."""
-        s, cfg = self.state, self.config
+        s = self.state
         if s.followed_jump is None or not self._recent_jump(t):
             return False
         back = math.hypot(innovation[0] + s.followed_jump[1],
@@ -588,8 +588,9 @@ class RoadFilter:
 
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
         """The thesis's rules or fuzzy weights; fixes farther than the rules' distance
-        threshold (and 5 sigma) for ``reacquire_after_gated_s`` restart the estimate from GPS (the thesis waits 3,000 fixes, for SA-era GPS: fifty
-        minutes of dead reckoning at 1 Hz, by which time the estimate is kilometres off)."""
+        threshold (and 5 sigma) for ``reacquire_after_gated_s`` restart the estimate from
+        GPS (the thesis waits 3,000 fixes, for SA-era GPS: fifty minutes of dead reckoning
+        at 1 Hz, by which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
         fix = self._with_velocity(fix, east, north)
@@ -675,7 +676,7 @@ class RoadFilter:
         """Of the position variance, the part the GPS bias makes (the rest is the track's
         own uncertainty, :attr:`FusedEstimate.tracking_sigma_m`)."""
         P = self.state.P
-        position = (P[X_M, X_M] + P[Y_M, Y_M]) / 2.0
+        position = float(P[X_M, X_M] + P[Y_M, Y_M]) / 2.0
         return max(position - _tracking_variance_m2(P), 0.0)
 
     def _estimate(self) -> FusedEstimate:
