@@ -122,7 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "error, share of epochs on the right road, intersections traversed "
                         "correctly.")
     ev.add_argument("--truth", required=True, type=Path, metavar="DRIVE.jsonl",
-                    help="the drive, with its truth records")
+                    help="the drive: its GPS packets, and its truth records when it has "
+                    "them (a real log without them is plotted with --plot, not scored)")
     ev.add_argument("--estimate", required=True, type=Path, metavar="OUT.jsonl",
                     help="matched positions from `navsvc run`")
     ev.add_argument("--json", action="store_true", help="print the metrics as JSON")
@@ -130,6 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also draw raw GPS, fused track, output and truth (PNG)")
     ev.add_argument("--map", type=Path, metavar="DB",
                     help="road-graph database drawn under the plot")
+    ev.add_argument("--title", help="the plot's title (default: the run's files, time span "
+                    "and headline scores)")
 
     _add_match_parser(sub)
     _add_tune_parser(sub)
@@ -372,19 +375,41 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     drive = read_records(args.truth)
     estimates = read_records(args.estimate)
-    try:
-        result = evaluate(drive, estimates)
-    except ValueError as exc:
-        raise NavsvcError(f"{args.truth}: {exc}") from None
-    except KeyError as exc:
-        raise NavsvcError(f"{args.estimate}: a record lacks the field {exc}") from None
+    has_truth = any(r.get("kind") == "truth" for r in drive)
+    if not has_truth and args.plot is None:
+        raise NavsvcError(f"{args.truth}: the drive has no truth records (nothing to score; "
+                          "--plot draws it without)")
+    result = None
+    if has_truth:
+        try:
+            result = evaluate(drive, estimates)
+        except ValueError as exc:
+            raise NavsvcError(f"{args.truth}: {exc}") from None
+        except KeyError as exc:
+            raise NavsvcError(f"{args.estimate}: a record lacks the field {exc}") from None
     if args.plot is not None:
         from navsvc.sim.plot import plot_run  # matplotlib is slow to import
 
         graph = RoadGraph.open(args.map) if args.map is not None else None
-        plot_run(drive, estimates, args.plot, graph=graph)
+        title = args.title or _plot_title(args, estimates, result)
+        plot_run(drive, estimates, args.plot, graph=graph, title=title)
+    if result is None:
+        print(f"{args.truth}: no truth records; plotted to {args.plot}, not scored")
+        return 0
     print(json.dumps(result.to_json(), indent=2) if args.json else format_evaluation(result))
     return 0
+
+
+def _plot_title(args: argparse.Namespace, estimates: list[dict[str, Any]],
+                result: Evaluation | None) -> str:
+    """The run's files, time span and, with truth, its headline scores."""
+    times = [r["t"] for r in estimates if isinstance(r.get("t"), (int, float))]
+    span = f", {max(times) - min(times):.0f} s" if times else ""
+    title = f"{args.estimate.name} on {args.truth.name}{span}, {len(estimates)} positions"
+    if result is not None:
+        title += (f"\nfused/raw GPS RMS {result.fused_to_raw_ratio:.2f}, right road "
+                  f"{100.0 * (result.on_right_road_share or 0.0):.0f} %")
+    return title
 
 
 def format_evaluation(e: Evaluation) -> str:

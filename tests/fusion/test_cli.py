@@ -53,6 +53,26 @@ def test_run_then_evaluate(sample_db: Path, drive_file: Path, tmp_path: Path,
     assert "fused / raw GPS RMS" in capsys.readouterr().out
 
 
+def test_evaluate_plots_a_drive_without_truth(sample_db: Path, drive_file: Path,
+                                              tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A real log has no truth: --plot draws raw GPS, fused and matched over the map; without
+    --plot it is an error that says so."""
+    log = tmp_path / "log.jsonl"
+    log.write_text("".join(line + "\n" for line in drive_file.read_text().splitlines()
+                           if json.loads(line)["kind"] != "truth"))
+    out = tmp_path / "out.jsonl"
+    assert main(["run", "--map", str(sample_db), "-i", str(log), "-o", str(out),
+                 "--quiet"]) == 0
+    plot = tmp_path / "log.png"
+    assert main(["evaluate", "--truth", str(log), "--estimate", str(out), "--plot", str(plot),
+                 "--map", str(sample_db), "--title", "a real log"]) == 0
+    assert "no truth records; plotted" in capsys.readouterr().out
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["evaluate", "--truth", str(log), "--estimate", str(out)]) == 1
+    assert "has no truth records" in capsys.readouterr().err
+
+
 def test_run_reports_bad_lines_and_keeps_going(sample_db: Path, drive_file: Path,
                                                tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
