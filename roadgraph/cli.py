@@ -151,7 +151,11 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     if args.bbox is not None:
-        collection = feature_collection(read_edges_in_bbox(args.db, args.bbox))
+        west, south, east, north = args.bbox
+        nodes = [n for n in read_network(args.db).nodes
+                 if west <= n.lon_deg <= east and south <= n.lat_deg <= north] \
+            if args.nodes else []
+        collection = feature_collection(read_edges_in_bbox(args.db, args.bbox), nodes)
     else:
         network = read_network(args.db)
         collection = feature_collection(network.edges, network.nodes if args.nodes else ())

@@ -55,6 +55,13 @@ def test_export_geojson(sample_db: Path, tmp_path: Path) -> None:
                  "--bbox", "7.420,43.730,7.425,43.735"]) == 0
     part = json.loads(out.read_text())["features"]
     assert 0 < len(part) < len(data["features"])
+    assert {f["geometry"]["type"] for f in part} == {"LineString"}
+    assert main(["export", str(sample_db), "--geojson", str(out), "--nodes",
+                 "--bbox", "7.420,43.730,7.425,43.735"]) == 0
+    points = [f["geometry"]["coordinates"] for f in json.loads(out.read_text())["features"]
+              if f["geometry"]["type"] == "Point"]
+    assert points and all(7.420 <= lon <= 7.425 and 43.730 <= lat <= 43.735
+                          for lon, lat in points)  # --nodes with --bbox: those inside
 
 
 @pytest.mark.parametrize(("args", "message"), [
