@@ -15,10 +15,19 @@ from roadgraph.errors import (
 )
 from roadgraph.geometry import LocalFrame
 from roadgraph.graph import EdgeKey, EdgeProjection, RoadGraph
-from roadgraph.importer import import_map
 
 __all__ = [
     "EdgeKey", "EdgeProjection", "EdgeRecord", "GraphArrays", "LocalFrame", "MapDatabaseError",
     "MapInfo", "MapSourceError", "NoDrivableRoadError", "NodeRecord", "RoadGraph",
     "RoadGraphError", "RoadNetwork", "SchemaVersionError", "import_map",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """``import_map`` on first use: the importer's builder and readers (numba kernels,
+    scipy, pyosmium) cost a second at start-up that opening a map does not need."""
+    if name == "import_map":
+        from roadgraph.importer import import_map
+
+        return import_map
+    raise AttributeError(f"module 'roadgraph' has no attribute {name!r}")
