@@ -48,8 +48,12 @@ class FusionConfig:
     gps_bias_tau_s: float = 30.0  # ekf: its time constant (receivers: 10-60 s)
     track_gap_s: float = 3.0  # ekf: fixes further apart than this break the GPS track
     track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump
-    max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused as long as
-    # the track had lasted, this long at most (non-line-of-sight runs last 10-60 s)
+    max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused this long
+    # at most (non-line-of-sight runs last 10-60 s) ...
+    jump_spread_m: float = 30.0  # ... while its fixes stay this close to the first (or 4
+    # sigma) ...
+    jump_drift_mps: float = 3.0  # ... plus this much a second: fixes running away from the
+    # estimate faster mean the estimate is diverging (a heading gone wrong), not the GPS
     reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS
     inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it

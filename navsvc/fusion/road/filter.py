@@ -102,7 +102,7 @@ class RoadState:
     tracking_since_t: float | None = None  # fixes accepted without a break since then
     last_accepted_t: float | None = None  # the latest fix the gate let through
     jump_since_t: float | None = None  # a run of fixes that jumped away from the track
-    jump_limit_s: float = 0.0  # ... refused this long at most
+    jump_offset_m: tuple[float, float] = (0.0, 0.0)  # ... the first one's innovation
     gated_offset_m: tuple[float, float] | None = None  # where the refused run's first fix lay
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
@@ -458,7 +458,7 @@ class RoadFilter:
                 self._tracking(fix.t)
                 s.gps = GpsUsage(True, 1.0, "re-acquired: the fixes jumped back", nis=nis)
                 return
-            if self._jumped(fix.t, nis):
+            if self._jumped(fix.t, nis, y, sigma):
                 s.gps = GpsUsage(False, 0.0, f"refused: jumped {math.hypot(*y):.0f} m away "
                                  "from the track (non-line-of-sight?)", nis=nis)
                 return
@@ -518,26 +518,33 @@ class RoadFilter:
         s.followed_jump = None
         return True
 
-    def _jumped(self, t: float, nis: float) -> bool:
+    def _jumped(self, t: float, nis: float, innovation: Array, sigma_m: float) -> bool:
         """Refuse a fix outright (no pull, no widening) as part of a jump: the filter had
         been tracking GPS without a break for at least ``track_settled_s`` when the fixes
         leapt away, which dead reckoning cannot do in a second and a non-line-of-sight run
-        does. The run is refused for as long as the track had lasted, ``max_jump_s`` at most
-        (a track that began on biased fixes is not trusted longer than it was followed);
-        the filter's own uncertainty grows meanwhile, so that a real error of the estimate
-        gets through the gate sooner."""
+        does. The run is refused for ``max_jump_s`` at most, and only while the fixes stay
+        near where they leapt to (``jump_spread_m`` or 4 sigma, plus ``jump_drift_mps`` for
+        dead reckoning's own drift): fixes that run away from the estimate faster say the
+        estimate is diverging, not the GPS."""
         s, cfg = self.state, self.config
         if not math.isfinite(nis):
             return False
         if s.jump_since_t is not None:
-            return t - s.jump_since_t < s.jump_limit_s
+            moved = math.hypot(innovation[0] - s.jump_offset_m[0],
+                               innovation[1] - s.jump_offset_m[1])
+            allowed = max(cfg.jump_spread_m, 4.0 * sigma_m) + \
+                cfg.jump_drift_mps * (t - s.jump_since_t)
+            if moved > allowed:
+                s.jump_since_t = None
+                return False
+            return t - s.jump_since_t < cfg.max_jump_s
         if s.tracking_since_t is None or s.last_accepted_t is None or \
                 t - s.last_accepted_t > cfg.track_gap_s:
             return False
-        tracked_s = s.last_accepted_t - s.tracking_since_t
-        if tracked_s < cfg.track_settled_s:
+        if s.last_accepted_t - s.tracking_since_t < cfg.track_settled_s:
             return False
-        s.jump_since_t, s.jump_limit_s = t, cfg.max_jump_s
+        s.jump_since_t = t
+        s.jump_offset_m = (float(innovation[0]), float(innovation[1]))
         return True
 
     def _gps_sigma_learnt(self, fix: GpsFix) -> float:
