@@ -81,6 +81,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="these configurations instead, e.g. gyro_odometer:rules,"
                         "gyro_accel:ekf (the first counts as the default in the tables)")
     parser.add_argument("--workers", type=int, default=2, help="processes (at most 2 here)")
+    parser.add_argument("--map-feedback", action="store_true",
+                        help="sessions with map feedback (the matched road corrects the "
+                        "filter; default off, as for a session)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a FusionConfig number for every run (tuning; "
                         "repeatable), e.g. --set gps_bias_tau_s=60")
@@ -157,9 +160,9 @@ def harsh_drive(graph: RoadGraph, seed: int, duration: float
     return simulate_drive(graph, spec), spec, outage_start
 
 
-def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None]
+def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, bool]
                ) -> list[dict[str, Any]]:
-    map_name, seed, duration, all_configs, overrides, chosen = job
+    map_name, seed, duration, all_configs, overrides, chosen, feedback = job
     graph = RoadGraph.open(_map_db(map_name))
     urbannav = seed % URBANNAV_EVERY == 0
     drive, spec, outage_start = harsh_drive(graph, seed, duration)
@@ -168,7 +171,8 @@ def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None]
         started = time.perf_counter()
         kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
         fusion = FusionConfig(sensors=sensors, gps_mode=mode, **overrides)  # type: ignore[arg-type]
-        session = VehicleSession(SessionConfig(fusion), graph)
+        session = VehicleSession(SessionConfig(
+            fusion, map_feedback=feedback and fusion.profile.map_feedback), graph)
         result = session.add_records([r for r in drive if r["kind"] in kinds])
         card = score(drive, [position_json(p, graph.frame) for p in result.positions],
                      outage_start)
@@ -255,7 +259,7 @@ def main() -> None:
         _map_db(name)
     overrides = _overrides(args.set)
     jobs = [(name, seeds[i * len(maps) + k], args.duration, args.all_configs, overrides,
-             args.configs)
+             args.configs, args.map_feedback)
             for i in range(args.drives_per_map) for k, name in enumerate(maps)]
     rows: list[dict[str, Any]] = []
     started = time.perf_counter()
@@ -279,7 +283,8 @@ def main() -> None:
     write_json(f"generalisation_eval_{args.split}", {
         "split": args.split, "drives": len(jobs), "duration_s": args.duration, "maps": maps,
         "outage_length_s": OUTAGE_LENGTH_S, "urbannav_every": URBANNAV_EVERY,
-        "all_configs": args.all_configs, "overrides": overrides, "wall_s": round(wall_s, 1),
+        "all_configs": args.all_configs, "map_feedback": args.map_feedback,
+        "overrides": overrides, "wall_s": round(wall_s, 1),
         "targets": [dict(zip(("score", "median", "worst", "target", "met"), t))
                     for t in check(_cards(default))], "rows": rows})
 

@@ -245,9 +245,11 @@ def _add_session_options(parser: argparse.ArgumentParser, epilog: str | None = N
                         "see below)")
     parser.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
                         help="GPS fusion mode (default ekf; see below)")
-    parser.add_argument("--map-feedback", action="store_true",
+    parser.add_argument("--map-feedback", action=argparse.BooleanOptionalAction,
+                        default=None,
                         help="feed confident matches back into the filter as a road "
-                        "constraint (bounds drift in GPS outages)")
+                        "constraint (bounds drift in GPS outages; default: on wherever the "
+                        "sensor configuration allows it, all but strapdown)")
     parser.add_argument("--profile", type=Path, metavar="PROFILE.json",
                         help="tuned parameters for the session (from `navsvc tune`)")
     parser.add_argument("--json", action="store_true", help="print a summary as JSON")
@@ -615,7 +617,9 @@ def _add_tune_parser(sub: Any) -> None:
                     help="sensor configuration of the sessions (default gyro_odometer)")
     tn.add_argument("--fusion", choices=FUSION_CHOICES, default="ekf",
                     help="GPS fusion mode of the sessions (default ekf)")
-    tn.add_argument("--map-feedback", action="store_true", help="sessions with map feedback")
+    tn.add_argument("--map-feedback", action=argparse.BooleanOptionalAction, default=None,
+                    help="sessions with or without map feedback (default: as a session, on "
+                    "where the sensor configuration allows it)")
     tn.add_argument("--json", action="store_true", help="print a summary as JSON")
     tn.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_cluster_options(tn)

@@ -68,11 +68,19 @@ class SessionConfig:
     fusion: FusionConfig = FusionConfig()
     matcher: MatcherConfig = MatcherConfig()
     strapdown: StrapdownOptions = StrapdownOptions()  # the INS, for sensors "strapdown"
-    map_feedback: bool = False  # matched road → pseudo-measurement into the filter
+    map_feedback: bool | None = None  # matched road → pseudo-measurement into the filter;
+    # None: where the sensor configuration allows it (every road-filter configuration)
     match_interval_s: float = 0.1  # the matcher also steps between outputs (short edges)
     feedback_sigma_across_m: float = 2.0
     feedback_sigma_heading_rad: float = math.radians(5.0)
     feedback_max_distance_m: float = 10.0
+
+    @property
+    def feedback(self) -> bool:
+        """Whether the session feeds the matched road back (``map_feedback`` resolved)."""
+        if self.map_feedback is None:
+            return self.fusion.profile.map_feedback
+        return self.map_feedback
 
 
 @dataclass
@@ -189,7 +197,7 @@ class VehicleSession:
         else:
             position = self.matcher.update(estimate)
             self._last_match_t = estimate.t
-            if self.config.map_feedback:
+            if self.config.feedback:
                 self._feed_back(position)
         self.last_position = position
         return position
@@ -234,7 +242,7 @@ def config_from_options(options: dict[str, Any]) -> SessionConfig:
         mounting_rpy_deg=_triple(options.get("imu_mounting_rpy_deg", base.mounting_rpy_deg)),
         lever_arm_m=_triple(options.get("gps_lever_arm_m", base.lever_arm_m)))
     config = SessionConfig(fusion=fusion, strapdown=strapdown,
-                           map_feedback=bool(options.get("map_feedback", False)))
+                           map_feedback=_optional_bool(options.get("map_feedback")))
     return apply_profile(config, options.get("profile"))
 
 
@@ -272,6 +280,8 @@ def _set_path(obj: Any, path: list[str], value: Any, name: str) -> Any:
         raise ConfigError(f"profile parameter {name!r}: {type(obj).__name__} has no field "
                           f"{head!r}")
     current = getattr(obj, head)
+    if current is None and head == "map_feedback":  # unset: on where the sensors allow it
+        current = False
     if rest:
         new = _set_path(current, rest, value, name)
     elif isinstance(current, bool | int | float) and not isinstance(current, enum.Enum):
@@ -294,6 +304,10 @@ def _number(value: Any, kind: type, name: str) -> Any:
         raise ConfigError(f"profile parameter {name!r}: expected a finite "
                           f"{'integer' if kind is int else 'number'}, got {value!r}")
     return kind(value)
+
+
+def _optional_bool(value: Any) -> bool | None:
+    return None if value is None else bool(value)
 
 
 def _triple(values: Any) -> tuple[float, float, float]:

@@ -21,8 +21,10 @@ class SessionCreate(BaseModel):
     vehicle_id: str = Field(min_length=1, max_length=128, examples=["car-17"])
     sensors: SensorConfig = Field(SensorConfig.GYRO_ODOMETER, description="sensor configuration")
     fusion: GpsMode = Field(GpsMode.EKF, description="how GPS is fused: ekf, rules or fuzzy")
-    map_feedback: bool = Field(False, description="feed confident matches back into the filter "
-                               "as a road constraint (bounds drift in GPS outages)")
+    map_feedback: bool | None = Field(
+        None, description="feed confident matches back into the filter as a road constraint "
+        "(bounds drift in GPS outages); default: on wherever the sensor configuration allows "
+        "it (all but strapdown)")
     ticks_per_m: float | None = Field(None, gt=0, le=10_000,
                                       description="odometer ticks per metre")
     wheelbase_m: float | None = Field(None, gt=0.5, le=20, description="for steering sensors")

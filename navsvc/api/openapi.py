@@ -195,7 +195,7 @@ def packet_schemas() -> tuple[dict[str, Any], dict[str, Any]]:
 
 SESSION_EXAMPLE: dict[str, Any] = {
     "id": "3f2a9c0d1b7e4a55", "vehicle_id": "car-17", "map": "monaco",
-    "options": {"sensors": "gyro_odometer", "fusion": "ekf", "map_feedback": False},
+    "options": {"sensors": "gyro_odometer", "fusion": "ekf"},
     "created_unix": 1764619200.0, "packets_accepted": 4400, "packets_rejected": 0,
     "position": POSITION_EXAMPLE}
 BATCH_REPLY_EXAMPLE: dict[str, Any] = {
