@@ -81,9 +81,10 @@ def _parser() -> argparse.ArgumentParser:
                         help="these configurations instead, e.g. gyro_odometer:rules,"
                         "gyro_accel:ekf (the first counts as the default in the tables)")
     parser.add_argument("--workers", type=int, default=2, help="processes (at most 2 here)")
-    parser.add_argument("--map-feedback", action="store_true",
-                        help="sessions with map feedback (the matched road corrects the "
-                        "filter; default off, as for a session)")
+    parser.add_argument("--map-feedback", action=argparse.BooleanOptionalAction,
+                        default=None, help="sessions with or without map feedback (the "
+                        "matched road corrects the filter; default: as a session, on where "
+                        "the sensor configuration allows it)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a FusionConfig number for every run (tuning; "
                         "repeatable), e.g. --set gps_bias_tau_s=60")
@@ -160,7 +161,7 @@ def harsh_drive(graph: RoadGraph, seed: int, duration: float
     return simulate_drive(graph, spec), spec, outage_start
 
 
-def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, bool]
+def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, bool | None]
                ) -> list[dict[str, Any]]:
     map_name, seed, duration, all_configs, overrides, chosen, feedback = job
     graph = RoadGraph.open(_map_db(map_name))
@@ -171,8 +172,8 @@ def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, b
         started = time.perf_counter()
         kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
         fusion = FusionConfig(sensors=sensors, gps_mode=mode, **overrides)  # type: ignore[arg-type]
-        session = VehicleSession(SessionConfig(
-            fusion, map_feedback=feedback and fusion.profile.map_feedback), graph)
+        feedback_here = feedback if feedback is None or fusion.profile.map_feedback else None
+        session = VehicleSession(SessionConfig(fusion, map_feedback=feedback_here), graph)
         result = session.add_records([r for r in drive if r["kind"] in kinds])
         card = score(drive, [position_json(p, graph.frame) for p in result.positions],
                      outage_start)
