@@ -88,3 +88,45 @@ def test_the_check_sees_the_imports_it_should() -> None:
     imports = runtime_imports()
     assert {"numpy", "fastapi", "websockets", "fastapi_offline"} <= set(imports)
     assert "httpx" not in imports  # the test extra's client stays out of the package
+
+
+def extras_only_modules() -> set[str]:
+    """Top-level modules that only the test and bench extras bring (nothing the runtime
+    dependencies or the ``distributed`` extra need)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    runtime = runtime_distributions()
+    extras = {_name(r) for extra in ("test", "bench")
+              for r in project["optional-dependencies"][extra]}
+    only = extras - runtime
+    return {module for module, dists in packages_distributions().items()
+            if {_name(d) for d in dists} <= only and not module.startswith("_")}
+
+
+def test_every_command_runs_without_the_test_and_bench_extras(sample_db: Path,
+                                                              tmp_path: Path) -> None:
+    """Each command's --help, and a short simulate and run, in a Python where every module of
+    the test and bench extras fails to import (an install without extras, as in the image;
+    `navsvc send` is tested so in tests/api/test_send.py)."""
+    import subprocess
+
+    from navsvc import cli
+
+    blocked = sorted(extras_only_modules())
+    assert "httpx" in blocked and "pytest" in blocked
+    drive, out = str(tmp_path / "d.jsonl"), str(tmp_path / "o.jsonl")
+    argvs = [["--help"]] + [[name, "--help"] for name in cli._COMMANDS] + [
+        ["simulate", "--map", str(sample_db), "-o", drive, "--duration", "20"],
+        ["run", "--map", str(sample_db), "-i", drive, "-o", out, "--quiet"],
+        ["evaluate", "--truth", drive, "--estimate", out]]
+    code = "\n".join([
+        "import sys", f"for m in {blocked!r}:", "    sys.modules[m] = None",
+        "from navsvc.cli import main", "import contextlib, io",
+        f"for argv in {argvs!r}:",
+        "    try:", "        with contextlib.redirect_stdout(io.StringIO()):",
+        "            assert main(argv) == 0, argv", "    except SystemExit as exc:",
+        "        assert exc.code in (0, None), (argv, exc.code)",
+        "print('ok')"])
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0 and done.stdout.strip().endswith("ok"), done.stderr
+    assert Path(out).read_text().count("\n") >= 15  # the run wrote its positions
