@@ -280,10 +280,12 @@ def _set_path(obj: Any, path: list[str], value: Any, name: str) -> Any:
         raise ConfigError(f"profile parameter {name!r}: {type(obj).__name__} has no field "
                           f"{head!r}")
     current = getattr(obj, head)
-    if current is None and head == "map_feedback":  # unset: on where the sensors allow it
-        current = False
+    optional_bool = current is None and "bool" in str(
+        next(f.type for f in fields(obj) if f.name == head))  # unset, e.g. map_feedback
     if rest:
         new = _set_path(current, rest, value, name)
+    elif optional_bool:
+        new = _number(value, bool, name)
     elif isinstance(current, bool | int | float) and not isinstance(current, enum.Enum):
         new = _number(value, type(current), name)
     else:

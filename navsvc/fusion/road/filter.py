@@ -445,10 +445,11 @@ class RoadFilter:
         east, north = self._local(fix)
         white, s.gps_bias_sigma_m = self._split_sigma(self._gps_sigma_learnt(fix))
         self._propagate_gps_bias(fix.t)
-        sigma = white * math.sqrt(max(1.0, 1.0 / max(dt_s, 1e-3)))
+        fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
+        sigma = white * math.sqrt(fixes_per_s)
         z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
         y = z - h
-        nis = float(y @ np.linalg.solve(H @ s.P @ H.T + R, y))
+        nis = kalman.nis(s.P, H, R, y)
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
             if self._jumps_back(fix.t, y, sigma):
                 s.x[X_M] += y[0]
@@ -465,7 +466,7 @@ class RoadFilter:
             self._refused_fix(fix, east, north, (z, h, H, R), nis, min(dt_s, 1.0))
             return
         if math.isfinite(nis):
-            memory = cfg.gps_nis_memory_fixes * max(1.0, 1.0 / max(dt_s, 1e-3))
+            memory = cfg.gps_nis_memory_fixes * fixes_per_s
             s.gps_nis_mean += (min(nis, 10.0 * cfg.gps_huber_nis) - s.gps_nis_mean) / memory
         weight = min(1.0, cfg.gps_huber_nis / nis) if nis > 0.0 else 1.0
         self._update_linearised((z, h, H, R / weight))
