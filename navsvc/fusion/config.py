@@ -45,6 +45,8 @@ class FusionConfig:
     gps_huber_nis: float = 5.99  # ekf: a fix past this NIS (95 %, 2 dof) pulls as one at it
     gps_bias_share: float = 0.85  # ekf: of a fix's sigma, the part that is a slowly changing
     # error (two bias states carry it; averaging fixes does not remove it)
+    gps_bias_max_sigmas: float = 6.0  # ekf: the bias states never hold more than this many
+    # of their steady sigmas (a fix that far off is a jump, not a slowly changing error)
     gps_bias_tau_s: float = 30.0  # ekf: its time constant (receivers: 10-60 s)
     track_gap_s: float = 3.0  # ekf: fixes further apart than this break the GPS track
     track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump

@@ -76,16 +76,46 @@ def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:
     assert used[:5] == [True] * 5 and sum(used) >= 0.9 * len(used), after
 
 
-def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
-    """Fixes that come back from a gap 50 m off (the track not settled yet) are followed;
-    when they jump back by the same offset, the filter is back on them at that fix."""
-    packets = [p for p in _drive(100.0, [(50.0, 80.0, 50.0)])
-               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 50.0)]
+def test_fixes_back_from_an_outage_far_off_are_a_jump_when_dead_reckoning_is_sure() -> None:
+    """Dead reckoning through a 20 s gap stays within metres; fixes that come back 50 m off
+    it are refused as a jump (a non-line-of-sight run), and taken when they are right again."""
+    packets = [p for p in _drive(120.0, [(60.0, 80.0, 50.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 60.0)]
     _, fixes = _run(packets)
+    during = [f for f in fixes if 60.0 <= f[0] < 80.0]
+    assert all(err < 10.0 and reason.startswith("refused: jumped")
+               for _, err, reason in during), during
+    assert all(err < 3.0 for t, err, _ in fixes if t >= 81.0)
+
+
+def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
+    """Fixes that jump 50 m off a track not settled yet (2 s after a gap) are followed;
+    when they jump back by the same offset, the filter is back on them at that fix, and the
+    GPS bias states keep nothing of the jump."""
+    packets = [p for p in _drive(100.0, [(50.0, 80.0, 50.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 48.0)]
+    road, fixes = _run(packets)
     assert [err > 30.0 for t, err, _ in fixes if 70.0 <= t < 80.0] == [True] * 10
     back = [f for f in fixes if f[0] >= 80.0]
     assert back[0][2] == "re-acquired: the fixes jumped back"
-    assert all(err < 5.0 for _, err, _ in back), back
+    assert all(err < 3.0 for _, err, _ in back), back
+
+
+def test_the_gps_bias_states_stay_within_their_bound() -> None:
+    """A followed 50 m jump is position, not bias: the bias states never hold more than
+    ``gps_bias_max_sigmas`` of their steady sigma."""
+    config = FusionConfig()
+    road = RoadFilter(config, FRAME)
+    packets = [p for p in _drive(100.0, [(50.0, 100.0, 50.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 48.0)]
+    largest = 0.0
+    for p in packets:
+        road.apply(p)
+        s = road.state
+        if s.initialized and s.gps_bias_sigma_m > 0.0:
+            bias = max(abs(s.x[GPS_BIAS_E]), abs(s.x[GPS_BIAS_N])) / s.gps_bias_sigma_m
+            largest = max(largest, bias)
+    assert 0.0 < largest <= config.gps_bias_max_sigmas + 1e-9
 
 
 def test_weighted_modes_blend_only_what_gps_measures() -> None:

@@ -225,6 +225,14 @@ class RoadFilter:
         limit = self.config.gyro_scale_error_limit
         s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
         s.x[GPS_LATENCY] = min(max(s.x[GPS_LATENCY], 0.0), self.config.max_gps_latency_s)
+        limit = self.config.gps_bias_max_sigmas * s.gps_bias_sigma_m
+        for p, b in ((X_M, GPS_BIAS_E), (Y_M, GPS_BIAS_N)):  # left free, the bias states
+            # took up a 70 m offset of the fixes from a wrong start, and the estimate stayed
+            # there while the fixes were right: the excess goes to the position (where the
+            # fixes are predicted stays the same)
+            bounded = min(max(s.x[b], -limit), limit)
+            s.x[p] += s.x[b] - bounded
+            s.x[b] = bounded
         return nis
 
     # --- dead reckoning ------------------------------------------------------------------
@@ -373,18 +381,7 @@ class RoadFilter:
                         speed: tuple[float, float] | None) -> None:
         """Position from the fix; heading and speed, with their variances, when given."""
         s, cfg = self.state, self.config
-        sigma = self._sigma_m(fix)
-        s.x[X_M], s.x[Y_M] = east, north
-        reset = [X_M, Y_M, *GPS_BIAS]
-        s.P[reset, :] = 0.0
-        s.P[:, reset] = 0.0
-        s.x[list(GPS_BIAS)] = 0.0
-        white, s.gps_bias_sigma_m = self._split_sigma(sigma)
-        s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma ** 2
-        s.P[X_M, GPS_BIAS_E] = s.P[GPS_BIAS_E, X_M] = -s.gps_bias_sigma_m ** 2
-        s.P[Y_M, GPS_BIAS_N] = s.P[GPS_BIAS_N, Y_M] = -s.gps_bias_sigma_m ** 2
-        s.P[GPS_BIAS_E, GPS_BIAS_E] = s.P[GPS_BIAS_N, GPS_BIAS_N] = s.gps_bias_sigma_m ** 2
-        s.gps_bias_t = fix.t
+        self._reset_position(east, north, self._sigma_m(fix), fix.t)
         if heading is not None:
             s.x[HEADING] = heading[0] % (2.0 * math.pi)
             _reset_variance(s.P, HEADING, heading[1])
@@ -403,6 +400,22 @@ class RoadFilter:
                            (GPS_LATENCY, cfg.initial_gps_latency_sigma_s ** 2)):
                 _reset_variance(s.P, i, var)
         s.gated_fixes, s.first_gated_t, s.jump_since_t = 0, None, None
+
+    def _reset_position(self, east: float, north: float, sigma_m: float, t: float) -> None:
+        """Position where a fix puts it, GPS bias zero, the fix's variance split between
+        them (the bias part is the same error in both, hence their negative covariance)."""
+        s = self.state
+        s.x[X_M], s.x[Y_M] = east, north
+        reset = [X_M, Y_M, *GPS_BIAS]
+        s.P[reset, :] = 0.0
+        s.P[:, reset] = 0.0
+        s.x[list(GPS_BIAS)] = 0.0
+        s.gps_bias_sigma_m = self._split_sigma(sigma_m)[1]
+        s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma_m ** 2
+        s.P[X_M, GPS_BIAS_E] = s.P[GPS_BIAS_E, X_M] = -s.gps_bias_sigma_m ** 2
+        s.P[Y_M, GPS_BIAS_N] = s.P[GPS_BIAS_N, Y_M] = -s.gps_bias_sigma_m ** 2
+        s.P[GPS_BIAS_E, GPS_BIAS_E] = s.P[GPS_BIAS_N, GPS_BIAS_N] = s.gps_bias_sigma_m ** 2
+        s.gps_bias_t = t
 
     def _initial_gyro_bias(self) -> tuple[float, float]:
         """The gyro bias and its variance at start-up: the mean rate while standing still,
@@ -452,10 +465,13 @@ class RoadFilter:
         nis = kalman.nis(s.P, H, R, y)
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
             if self._jumps_back(fix.t, y, sigma):
-                s.x[X_M] += y[0]
-                s.x[Y_M] += y[1]
-                s.P[X_M, X_M] += sigma ** 2
-                s.P[Y_M, Y_M] += sigma ** 2
+                # the bias states took up part of the jump the filter followed: that was the
+                # jump's error, not a slowly changing one (left there, it kept the estimate
+                # 25 m off for a minute); the position goes where this fix puts it
+                lag, v = s.x[GPS_LATENCY], s.x[SPEED]
+                self._reset_position(z[0] + lag * v * math.sin(s.x[HEADING]),
+                                     z[1] + lag * v * math.cos(s.x[HEADING]),
+                                     self._sigma_m(fix), fix.t)
                 self._tracking(fix.t)
                 s.gps = GpsUsage(True, 1.0, "re-acquired: the fixes jumped back", nis=nis)
                 return
@@ -523,7 +539,9 @@ class RoadFilter:
         """Refuse a fix outright (no pull, no widening) as part of a jump: the filter had
         been tracking GPS without a break for at least ``track_settled_s`` when the fixes
         leapt away, which dead reckoning cannot do in a second and a non-line-of-sight run
-        does. The run is refused for ``max_jump_s`` at most, and only while the fixes stay
+        does. That holds across a GPS outage too: the gate has already allowed for dead
+        reckoning's drift through it (fixes returning 60 m off after an honest 2 m were a
+        non-line-of-sight run the filter followed for 17 s). The run is refused for ``max_jump_s`` at most, and only while the fixes stay
         near where they leapt to (``jump_spread_m`` or 4 sigma, plus ``jump_drift_mps`` for
         dead reckoning's own drift): fixes that run away from the estimate faster say the
         estimate is diverging, not the GPS."""
@@ -539,8 +557,7 @@ class RoadFilter:
                 s.jump_since_t = None
                 return False
             return t - s.jump_since_t < cfg.max_jump_s
-        if s.tracking_since_t is None or s.last_accepted_t is None or \
-                t - s.last_accepted_t > cfg.track_gap_s:
+        if s.tracking_since_t is None or s.last_accepted_t is None:
             return False
         if s.last_accepted_t - s.tracking_since_t < cfg.track_settled_s:
             return False
