@@ -423,15 +423,26 @@ def _steering_records(truth: _Truth, spec: DriveSpec,
                       rng: np.random.Generator) -> list[dict[str, Any]]:
     e = spec.errors
     bias = rng.normal(0.0, e.steering_bias_rad)
+    curvature_left = _curvature_left(truth)
     out = []
     for i in _every(truth, spec.steering_rate_hz, spec.imu_rate_hz):
-        v = truth.speed[i]
-        curvature_left = -truth.rate[i] / v if v > 1.0 else 0.0
-        angle = math.atan(spec.wheelbase_m * curvature_left) + bias + \
+        angle = math.atan(spec.wheelbase_m * curvature_left[i]) + bias + \
             rng.normal(0.0, e.steering_noise_rad)
         out.append({"t": round(float(truth.t[i]), 4), "kind": "steering",
                     "angle_deg": math.degrees(angle)})
     return out
+
+
+def _curvature_left(truth: _Truth) -> FloatArray:
+    """The path's curvature (1/m, left positive) where the car is: the angle its wheels are
+    steered to, also at walking pace through a corner after a stop, and kept while it
+    stands (it was taken as straight ahead below 1 m/s, so steering said nothing of the
+    slow corners where a car turns most)."""
+    ds, dheading = np.gradient(truth.s), np.gradient(truth.heading)
+    moving = ds > 1e-6
+    curvature = np.where(moving, -dheading / np.where(moving, ds, 1.0), 0.0)
+    last_moving = np.maximum.accumulate(np.where(moving, np.arange(len(ds)), 0))
+    return np.where(moving | (last_moving > 0), curvature[last_moving], 0.0)
 
 
 def _gps_blocked(graph: RoadGraph, path: _Path, truth: _Truth, i: int, spec: DriveSpec) -> bool:
