@@ -152,3 +152,18 @@ def correct_leaving(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
     K = PHt @ np.linalg.inv(H @ PHt + R)
     K[list(unchanged), :] = 0.0
     return joseph(x, P, _f64(z - h), _f64(H), _f64(R), _f64(K))
+
+
+def no_surer_than(P: Array, H: Array, R: Array) -> Array:
+    """``R`` (diagonal) raised so that no row of the update leaves the state surer along it
+    than the measurement itself is: for a source that says the same thing again and again
+    with one error that does not average out (the map: a road's line is as wrong the
+    hundredth time it is looked at as the first). A row already that sure is dropped."""
+    R = R.copy()
+    for i in range(len(R)):
+        p, r = float(H[i] @ P @ H[i]), float(R[i, i])
+        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) else max(r, r * p / (p - r))
+    return R
+
+
+DROPPED_VARIANCE = 1e12  # a measurement row that says nothing

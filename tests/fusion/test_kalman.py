@@ -89,3 +89,23 @@ def test_predict_with_gyro_is_predict_then_the_rate_from_the_gyro(
     x2[motion.HEADING_RATE] = -(rate - x1[motion.GYRO_BIAS]) / gain
     np.testing.assert_allclose(fused_x, x2, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(fused_P, P2, rtol=1e-12, atol=1e-15)
+
+
+@given(st.lists(st.floats(-3.0, 3.0), min_size=9, max_size=9),
+       st.floats(0.01, 10.0), st.floats(0.01, 10.0))
+def test_a_repeated_measurement_never_makes_the_state_surer_than_itself(
+        values: list[float], r0: float, r1: float) -> None:
+    """The map's road constraint, looked at again and again: after any number of updates
+    with ``no_surer_than``, an update never takes the variance along its row below the
+    measurement's own, nor lowers it when it is already there (another row correlated with
+    it in ``P`` can: the road filter's two rows, across the road and heading, hardly are)."""
+    A = np.array(values).reshape(3, 3)
+    P = A @ A.T + 5.0 * np.eye(3)
+    rows = (np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 0.6, 0.8]]))
+    x = np.zeros(3)
+    for k in range(6):
+        H, R = rows[k % 2], np.array([[(r0, r1)[k % 2]]])
+        before = H[0] @ P @ H[0]
+        x, P, _ = kalman.correct(x, P, np.zeros(1), H @ x, H, kalman.no_surer_than(P, H, R),
+                                 np.inf)
+        assert H[0] @ P @ H[0] >= min(R[0, 0], before) * (1.0 - 1e-6)

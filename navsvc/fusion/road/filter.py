@@ -35,6 +35,7 @@ from navsvc.fusion.road.measurements import (
     GpsVelocity,
     LateralAccel,
     OdometerSpeed,
+    RoadConstraint,
     SteeringRate,
     ZeroMotion,
     predict_with_gyro,
@@ -164,6 +165,8 @@ class RoadFilter:
         if not s.initialized:
             return False
         z, h, H, R = m.model(s.x)
+        if isinstance(m, RoadConstraint):  # the same map again: its error does not average
+            R = kalman.no_surer_than(s.P, H, R)
         limit = kalman.gate_limit(len(z))
         s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
         return nis <= limit
@@ -224,6 +227,13 @@ class RoadFilter:
         s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
         if not nis <= limit:
             return None
+        if s.x[SPEED] < 0.0 and self.profile.gps_alone:  # the same velocity as speed
+            # forward on the opposite heading, which GPS velocity cannot tell apart, but
+            # road vehicles drive forward (with an odometer, its speed keeps the sign)
+            s.x[SPEED], s.x[HEADING] = -s.x[SPEED], s.x[HEADING] + math.pi
+            flip = np.ones(N_STATES)
+            flip[SPEED] = -1.0
+            s.P = s.P * np.outer(flip, flip)
         s.x[HEADING] %= 2.0 * math.pi
         low, high = self.config.odo_scale_limits
         s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
@@ -547,8 +557,8 @@ class RoadFilter:
         """Refuse a fix outright (no pull, no widening) as part of a jump: the filter had
         been tracking GPS without a break for at least ``track_settled_s`` when the fixes
         leapt away, which dead reckoning cannot do in a second and a non-line-of-sight run
-        does. That holds across a GPS outage too: the gate has already allowed for dead
-        reckoning's drift through it (fixes returning 60 m off after an honest 2 m were a
+        does. With dead reckoning that holds across a GPS outage too: the gate has already
+        allowed for its drift through it (fixes returning 60 m off after an honest 2 m were a
         non-line-of-sight run the filter followed for 17 s). The run is refused for ``max_jump_s`` at most, and only while the fixes stay
         near where they leapt to (``jump_spread_m`` or 4 sigma, plus ``jump_drift_mps`` for
         dead reckoning's own drift): fixes that run away from the estimate faster say the
@@ -567,6 +577,8 @@ class RoadFilter:
             return t - s.jump_since_t < cfg.max_jump_s
         if s.tracking_since_t is None or s.last_accepted_t is None:
             return False
+        if self.profile.gps_alone and t - s.last_accepted_t > cfg.track_gap_s:
+            return False  # no dead reckoning carried the track through the gap
         if s.last_accepted_t - s.tracking_since_t < cfg.track_settled_s:
             return False
         s.jump_since_t = t
