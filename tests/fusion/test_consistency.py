@@ -10,9 +10,8 @@ stay below 2: a filter may be cautious, never sure of a position it does not hav
 
 Measured at the time of writing (6 drives x 180 s, Monaco, seeds 0-5; the test's own drives
 are shorter): gyro configurations 85-100 % inside (NEES 0.04-1.5: cautious), GPS alone
-81-100 % (NEES 0.2-2.5), steering + odometer 92-100 % (NEES 0.2-1.9). The strapdown INS,
-20-100 % (NEES up to 20), is overconfident and marked as a known failure (strict: a fix makes
-it pass and the mark must go).
+81-100 % (NEES 0.2-2.5), steering + odometer 92-100 % (NEES 0.2-1.9), the strapdown INS
+93-100 % (NEES 0.04-1.4).
 """
 
 from __future__ import annotations
@@ -52,13 +51,9 @@ def drives(sample_graph: RoadGraph) -> list[list[dict[str, object]]]:
     return out
 
 
-OVERCONFIDENT = pytest.mark.xfail(strict=True, reason="overconfident (issue 15: open)")
-
-
 @pytest.mark.parametrize("sensors", [
     SensorConfig.GYRO_ODOMETER, SensorConfig.GYRO_ACCEL, SensorConfig.GYRO_TWO_ACCELS,
-    SensorConfig.GPS_ONLY, SensorConfig.STEERING_ODOMETER,
-    pytest.param(SensorConfig.STRAPDOWN, marks=OVERCONFIDENT)])
+    SensorConfig.GPS_ONLY, SensorConfig.STEERING_ODOMETER, SensorConfig.STRAPDOWN])
 def test_the_reported_position_sigma_is_never_overconfident(
         sensors: SensorConfig, sample_graph: RoadGraph,
         drives: list[list[dict[str, object]]]) -> None:

@@ -86,6 +86,7 @@ class StrapdownState:
     odo_window: odometer.Window | None = None
     odo_speed: float | None = None  # latest raw wheel speed
     odo_scale: float = 1.0
+    gps_bias_var_m2: float = 0.0  # the slowly changing part of the latest fix's variance
 
 
 class StrapdownFilter:
@@ -262,6 +263,7 @@ class StrapdownFilter:
             return [self._estimate()] if s.ins is not None else []
         self._calibrate_odometer(fix)
         sigma = self._sigma_m(fix)
+        s.gps_bias_var_m2 = (self.config.gps_bias_share * sigma) ** 2
         if fix.alt_m is not None:
             s.height_m = fix.alt_m
         # without a GPS height, the last one known (loosely) keeps the vertical channel bounded
@@ -307,13 +309,18 @@ class StrapdownFilter:
         n = ins.output()
         x, y = self.frame.to_local(math.degrees(n.lon_rad), math.degrees(n.lat_rad))
         p = ins.position_cov_ned_m2()
-        cov = np.array([[p[1, 1], p[1, 0]], [p[0, 1], p[0, 0]]])  # (east, north) = (x, y)
+        # (east, north) = (x, y); the INS takes fixes as independent, so the error that
+        # averaging them does not remove (the road filter's bias states) is added here: it
+        # reported 1-2 m while the fixes' correlated error kept it 5 m off
+        bias = self.state.gps_bias_var_m2
+        cov = np.array([[p[1, 1] + bias, p[1, 0]], [p[0, 1], p[0, 0] + bias]])
         yaw_rate = 0.0 if rates is None else float(
             (n.c_bn @ (rates[0] - n.gyro_bias_rps))[2])
         return FusedEstimate(t=n.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(n.c_bn)[2],
                              speed_mps=float(math.hypot(n.v_ned[0], n.v_ned[1])),
                              yaw_rate_rps=yaw_rate, position_cov_m2=cov,
-                             heading_sigma_rad=ins.heading_sigma_rad(), gps=self.state.gps)
+                             heading_sigma_rad=ins.heading_sigma_rad(), gps=self.state.gps,
+                             gps_bias_var_m2=bias)
 
 
 T = TypeVar("T")
