@@ -62,6 +62,7 @@ class FusionConfig:
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad
     min_sats: int = 3  # thesis validity: fewer than 3 satellites is bad
     stationary_after_samples: int = 20  # thesis: odometer zero for 20+ samples
+    still_max_turn_rate_rps: float = 0.05  # ... unless the vehicle turns faster than this
     odometer_window_s: float = 0.25  # speed from distance over at least this long (ticks)
     initial_heading_min_move_m: float = 15.0  # heading from two fixes at least this far apart
     initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas apart

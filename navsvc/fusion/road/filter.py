@@ -72,11 +72,12 @@ from navsvc.types import (
 from roadgraph.geometry import LocalFrame, bearing_rad
 
 MAX_PLAUSIBLE_SPEED_MPS = 70.0
-STANDSTILL_LEAVES = (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE)  # a standstill update tells
-# the gyro bias, not these: the scales are unobservable at rest (the rate's Jacobian by the
-# gyro scale is the gyro noise, which the update read as information); and correcting
-# heading and position through their correlation with a bias that drifts moved a car at rest
-# 30 m and 6 degrees after an outage  # two fixes implying more are not the same car's track
+STANDSTILL_LEAVES = (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE, *GPS_BIAS, GPS_LATENCY)
+# a standstill update tells the gyro bias, not these: the scales are unobservable at rest (the
+# rate's Jacobian by the gyro scale is the gyro noise, which the update read as information);
+# correcting heading and position through their correlation with a bias that drifts moved a
+# car at rest 30 m and 6 degrees after an outage; and a car pulling away slowly through a
+# corner, read as standing, moved the GPS bias states 40 m
 
 
 STEERING_LEAVES = (SPEED, ODO_SCALE)  # the steering angle tells the turn rate at a speed,
@@ -271,7 +272,9 @@ class RoadFilter:
         cfg, s = self.config, self.state
         if OdometerSpeed not in self.profile.measurements:
             return
-        if self._odometer_still(packet):
+        if self._odometer_still(packet) and \
+                abs(s.x[HEADING_RATE]) <= cfg.still_max_turn_rate_rps:  # ticks too coarse
+            # for a car creeping through a corner: the gyro still sees it turn
             s.still_samples += 1
             if s.still_samples >= cfg.stationary_after_samples:
                 s.x, s.P = kalman.correct_leaving(s.x, s.P, *ZeroMotion().model(s.x),
