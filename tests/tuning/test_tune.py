@@ -57,8 +57,9 @@ def test_a_resumed_run_ends_where_a_whole_one_does(sample_db: Path, drive_files:
     assert main(tune_args(sample_db, drive_files, whole, *common, "--budget", "9")) == 0
     assert main(tune_args(sample_db, drive_files, part, *common, "--budget", "5",
                           "--resume", str(state))) == 0
-    # the start, then one generation of 4 whose first is the start again (cached)
-    assert json.loads(state.read_text())["evaluations"] == 4
+    # the start, one generation of 4 whose first is the start again (cached), and the
+    # next generation's first new point: the budget is spent to the last evaluation
+    assert json.loads(state.read_text())["evaluations"] == 5
     assert main(tune_args(sample_db, drive_files, part, *common, "--budget", "9",
                           "--resume", str(state))) == 0
     assert json.loads(part.read_text()) == json.loads(whole.read_text())
