@@ -1,5 +1,6 @@
 """Batch work on Dask distributed: tuning evaluations and traces per second with 1 and 2
-workers, and the same work in one process without Dask (the overhead).
+workers, the same work in one process without Dask (the overhead), and in 2 plain processes
+without Dask (``concurrent.futures``: what two processes get out of this machine at all).
 
 * evaluations: ``--sets`` parameter sets (the defaults and random points of the default
   table, seeded) each replayed on ``--drives`` harsh-urban drives of bench/generalisation_eval.py
@@ -35,7 +36,7 @@ import shutil
 import statistics
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,62 @@ from navsvc.tuning.replay import TuneDrive, replay
 from navsvc.tuning.run import evaluate_sets
 from navsvc.wire.jsonl import write_records
 
-MODES = (("one process, no Dask", 0), ("Dask, 1 worker", 1), ("Dask, 2 workers", 2))
+MODES = (("one process, no Dask", 0), ("Dask, 1 worker", 1), ("Dask, 2 workers", 2),
+         ("2 plain processes, no Dask", -2))
+_SHARED: dict[int, Any] = {}  # a plain process's copies of the shared values
+
+
+@dataclass(frozen=True)
+class _Ref:
+    """A value shared with the plain processes when they started (its index)."""
+
+    index: int
+
+
+def _plain_init(values: list[Any], warm: tuple[Any, ...]) -> None:
+    _SHARED.update(enumerate(values))
+    _warm(*warm)
+
+
+def _plain_call(fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
+    return fn(*(_SHARED[a.index] if isinstance(a, _Ref) else a for a in args))
+
+
+class PlainProcesses(Executor):
+    """The peer: the same tasks on ``n`` processes of ``concurrent.futures`` (no scheduler,
+    no event loops), the values to share sent when they start. What two processes get out
+    of this machine's two cores, against which Dask's 2 workers are measured."""
+
+    def __init__(self, n: int, shared: list[Any], warm: tuple[Any, ...]) -> None:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.workers, self.where, self.distributed = n, f"{n} plain processes", True
+        self._shared = shared
+        self._pool = ProcessPoolExecutor(n, multiprocessing.get_context("spawn"),
+                                         initializer=_plain_init, initargs=(shared, warm))
+        for f in [self._pool.submit(time.sleep, 0.5) for _ in range(2 * n)]:
+            f.result()  # every process started, warmed up and idle
+
+    def share(self, value: Any) -> Any:
+        return _Ref(next(i for i, v in enumerate(self._shared) if v is value))
+
+    def run(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]
+            ) -> Iterator[tuple[int, Any]]:
+        from concurrent.futures import as_completed
+
+        futures = {self._pool.submit(_plain_call, fn, args): i for i, args in enumerate(tasks)}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+    def cpu_seconds(self) -> float:
+        import psutil
+
+        return sum(sum(psutil.Process(pid).cpu_times()[:2])
+                   for pid in self._pool._processes)
+
+    def close(self) -> None:
+        self._pool.shutdown()
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -76,9 +132,11 @@ class Timing:
     client_cpu_s: list[float] = field(default_factory=list)
     load: list[float] = field(default_factory=list)  # 1-min load average after the run
 
-    def add(self, pool: Executor, in_process: bool, work: Callable[[], None]) -> None:
+    def add(self, pool: Executor, work: Callable[..., Any], *args: Any) -> None:
+        """Time ``work(*args)``, its CPU on the workers and in this process."""
+        in_process = not pool.distributed
         w0, c0, t0 = pool.cpu_seconds(), time.process_time(), time.perf_counter()
-        work()
+        work(*args)
         wall, w1, c1 = time.perf_counter() - t0, pool.cpu_seconds(), time.process_time()
         self.wall_s.append(wall)
         self.worker_cpu_s.append(w1 - w0)
@@ -103,6 +161,12 @@ def _warm(db: str, drive: TuneDrive, trace: str, output: str) -> None:
     match_files(db, [(trace, f"{output}.{os.getpid()}")], HmmConfig())
 
 
+def _match(pool: Executor, db: str, parts: list[list[tuple[str, str]]]) -> None:
+    """The traces, in chunks, as ``navsvc match`` sends them."""
+    for _ in pool.run(match_files, [(db, part, HmmConfig()) for part in parts]):
+        pass
+
+
 def _traces(folder: Path, graph: Any, count: int, duration: float) -> list[tuple[str, str]]:
     jobs = []
     for i in range(count):
@@ -123,8 +187,8 @@ def main() -> None:
               for s in TUNE_SEEDS[:args.drives]]
     params = select()
     rng = np.random.default_rng(0)
-    sets = [{}] + [decode(params, rng.random(len(params)).tolist())
-                   for _ in range(args.sets - 1)]
+    sets: list[dict[str, Any]] = [{}] + [decode(params, rng.random(len(params)).tolist())
+                                         for _ in range(args.sets - 1)]
     folder = Path(tempfile.mkdtemp(prefix="batch_scaling_"))
     pools: list[Executor] = []
     startup: list[float] = []
@@ -133,33 +197,36 @@ def main() -> None:
     try:
         jobs = _traces(folder, graph, args.traces, args.trace_duration)
         points = sum(1 for t, _ in jobs for _ in open(t, encoding="utf-8"))
-        for _, workers in MODES:  # all three up at once (an idle cluster: ~1 % of a core)
+        for _, workers in MODES:  # all up at once (an idle cluster: ~1 % of a core)
             started = time.perf_counter()
-            pools.append(executor(workers))
+            if workers >= 0:
+                pools.append(executor(workers))
+                pools[-1].warm_up(_warm, db, drives[0], *jobs[0])
+            else:
+                pools.append(PlainProcesses(-workers, drives, (db, drives[0], *jobs[0])))
             startup.append(time.perf_counter() - started)
-            pools[-1].warm_up(_warm, db, drives[0], *jobs[0])
         handles = [[pool.share(d) for d in drives] for pool in pools]
         for _ in range(args.repeats):
-            for k, (pool, (_, workers)) in enumerate(zip(pools, MODES)):
-                evals[k].add(pool, workers == 0, lambda: evaluate_sets(
-                    pool, db, handles[k], {}, sets))
+            for k, pool in enumerate(pools):
+                evals[k].add(pool, evaluate_sets, pool, db, handles[k], {}, sets)
                 parts = chunks(jobs, pool.workers if pool.distributed else 0)
-                traces[k].add(pool, workers == 0, lambda: list(pool.run(
-                    match_files, [(db, part, HmmConfig()) for part in parts])))
+                traces[k].add(pool, _match, pool, db, parts)
     finally:
         for pool in pools:
             pool.close()
         shutil.rmtree(folder, ignore_errors=True)
     rows: list[dict[str, Any]] = []
     for k, (label, workers) in enumerate(MODES):
-        n = max(workers, 1)
+        n = max(abs(workers), 1)
         rows.append({"mode": label, "workers": n, "startup_s": startup[k],
                      "evaluations": evals[k].summary(len(sets), n),
                      "traces": traces[k].summary(len(jobs), n)})
-    one, two = rows[1], rows[2]
+    single, one, two, plain = rows
     ratios = {kind: {"wall_2w_over_1w": two[kind]["per_s"] / one[kind]["per_s"],
                      "cpu_per_unit_2w_over_1w": two[kind]["cpu_s_per_unit"]
-                     / one[kind]["cpu_s_per_unit"]}
+                     / one[kind]["cpu_s_per_unit"],
+                     "wall_plain2_over_1": plain[kind]["per_s"] / single[kind]["per_s"],
+                     "wall_2w_over_plain2": two[kind]["per_s"] / plain[kind]["per_s"]}
               for kind in ("evaluations", "traces")}
     title = (f"{args.sets} parameter sets x {args.drives} drives of {args.duration:.0f} s "
              f"({args.sets * args.drives} replays); {len(jobs)} traces of "
@@ -172,11 +239,15 @@ def main() -> None:
                   r[kind]["cpu_s_per_unit"], r[kind]["client_cpu_s_per_unit"],
                   r[kind]["core_share"], r[kind]["load"]] for r in rows]
         print_table(title if kind == "evaluations" else "", [
-            "mode", "start-up s", f"{kind}/s", "vs 1 worker", f"worker CPU s / {unit}",
-            f"client CPU s / {unit}", "core share", "load (1 min)"], table)
-        print(f"{kind}: 2 workers / 1 worker = {ratios[kind]['wall_2w_over_1w']:.2f}x in wall "
-              f"time (target >= 1.7); CPU s per {unit}, 2 workers / 1 worker = "
-              f"{ratios[kind]['cpu_per_unit_2w_over_1w']:.2f} (1.00: no overhead)")
+            "mode", "start-up s (with warm-up)", f"{kind}/s", "vs 1 worker",
+            f"worker CPU s / {unit}", f"client CPU s / {unit}", "core share", "load (1 min)"],
+            table)
+        r = ratios[kind]
+        print(f"{kind}: Dask 2 workers / 1 worker = {r['wall_2w_over_1w']:.2f}x in wall time "
+              f"(target >= 1.7); CPU s per {unit}, 2 workers / 1 worker = "
+              f"{r['cpu_per_unit_2w_over_1w']:.2f} (1.00: no overhead); the peer, 2 plain "
+              f"processes / 1 process = {r['wall_plain2_over_1']:.2f}x; Dask 2 workers / 2 "
+              f"plain processes = {r['wall_2w_over_plain2']:.2f}")
     print(f"replays/s (evaluations/s x {args.drives}); points/s (traces/s x "
           f"{points / len(jobs):.0f})")
     write_json("batch_scaling", {"sets": args.sets, "drives": args.drives,
