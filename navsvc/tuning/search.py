@@ -135,14 +135,15 @@ class Genetic:
         n = genotype_length(params)
         population = [unit_to_genotype(params, u0)]
         randoms = round(random_share * (size - 1))
-        while len(population) < size - randoms:
-            u = np.clip(np.asarray(u0) + rng.normal(0.0, start_spread, len(u0)), 0.0, 1.0)
-            bits = unit_to_genotype(params, u.tolist())
-            if bits not in population:
-                population.append(bits)
+        tries = 0  # a small genotype space (a few booleans) may hold fewer than ``size``
         while len(population) < size:
-            bits = [int(b) for b in rng.integers(0, 2, n)]
-            if bits not in population:
+            if len(population) < size - randoms:
+                u = np.clip(np.asarray(u0) + rng.normal(0.0, start_spread, len(u0)), 0.0, 1.0)
+                bits = unit_to_genotype(params, u.tolist())
+            else:
+                bits = [int(b) for b in rng.integers(0, 2, n)]
+            tries += 1
+            if bits not in population or tries > 100 * size:
                 population.append(bits)
         return cls(tuple(params), population, rng, elites=min(2, size - 1),
                    seen={_bits(g) for g in population})
