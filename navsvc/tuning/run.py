@@ -29,7 +29,7 @@ from navsvc.tuning.profile import changed, current_value, defaults, profile_docu
 from navsvc.tuning.replay import TuneDrive, replay
 from navsvc.tuning.search import Search, search_from_json, search_to_json, start_search
 
-STATE_FORMAT = "navsvc-tune-state/1"
+STATE_FORMAT = "navsvc-tune-state/2"  # 2: the GA of Gray codes and tournaments
 
 
 def score_task(map_path: str, drive: TuneDrive, options: dict[str, Any],
@@ -101,7 +101,12 @@ class TuneRun:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> TuneRun:
-        if d.get("format") != STATE_FORMAT:
+        found = d.get("format")
+        if isinstance(found, str) and found.startswith("navsvc-tune-state/") and \
+                found != STATE_FORMAT:
+            raise ConfigError(f"a tuning state of another navsvc version ({found}; this one "
+                              f"reads {STATE_FORMAT}): start the run again")
+        if found != STATE_FORMAT:
             raise ConfigError("not a tuning state (from `navsvc tune`)")
         params = tuple(BY_NAME[n] for n in d["params"])
         return cls(d["method"], params, d["seed"], d["budget"], tuple(d["drives"]),

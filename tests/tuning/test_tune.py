@@ -68,6 +68,13 @@ def test_a_resumed_run_ends_where_a_whole_one_does(sample_db: Path, drive_files:
                           "--resume", str(state))) == 1
     assert "the state is of another run: its method is 'ga', this command's 'hill'" in \
         capsys.readouterr().err
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({**json.loads(state.read_text()),
+                               "format": "navsvc-tune-state/1"}))
+    assert main(tune_args(sample_db, drive_files, part, *common, "--budget", "9",
+                          "--resume", str(old))) == 1
+    assert (f"{old}: a tuning state of another navsvc version (navsvc-tune-state/1; this "
+            "one reads navsvc-tune-state/2): start the run again") in capsys.readouterr().err
 
 
 def test_dask_local_cluster_gives_the_answer_of_one_process(sample_db: Path,
