@@ -26,6 +26,21 @@ workers against 1 in wall time, which needs a quiet machine (core share near 1 f
 
     nice -n 10 python bench/batch_scaling.py [--sets 8] [--drives 4] [--duration 120]
         [--traces 48] [--trace-duration 900] [--repeats 3]
+
+What was measured when 1 worker was slower than one process and 2 workers slower still
+(December 2026, this machine under load 2-6 from other work):
+* a replay costs the same CPU in a worker as in process (task thread 276-294 ms against
+  278-296 ms per 120 s drive); the worker's other threads add about 3 %;
+* one trace per task on 1 worker (``chunks`` gave 1 worker no chunks): 32 traces/s against 117
+  in process; fixed;
+* an idle cluster's housekeeping took 7 % of a core, and this bench keeps all its executors
+  up: now 1.2 % (``navsvc.batch.LOCAL_CLUSTER_CONFIG``);
+* OMP/MKL/OpenBLAS are at 1 thread in Dask's workers already (and numba now);
+* the rest is the load: at load 5-6, 2 workers got a quarter of a core each (core share 0.25)
+  and 1 worker half of one, so 2 ran slower than 1; 2 plain processes did the same (Dask 2
+  workers / 2 plain processes: 1.04 for evaluations, 0.95 for traces). Two replays at once
+  also cost more CPU each than one alone, without Dask too (250-258 ms against 228-238 in a
+  separate test): on this VM the two cores share caches and memory.
 """
 
 from __future__ import annotations
