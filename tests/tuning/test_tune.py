@@ -83,15 +83,19 @@ def test_dask_local_cluster_gives_the_answer_of_one_process(sample_db: Path,
     def run_on(pool: Executor) -> dict[str, object]:
         run = TuneRun.start("ga", select(TUNED.split(",")), 2, 5, [d.name for d in drives],
                             {"profile": {"parameters": MISTUNED}}, population=4)
-        with pool:
-            tune(run, pool, str(sample_db), drives)
+        tune(run, pool, str(sample_db), drives)
         return result_profile(run)
 
     local = run_on(Executor())
     with executor(2) as pool:
         assert pool.workers == 2 and "local Dask cluster of 2" in pool.where
+        assert pool.distributed
+        cpu = pool.cpu_seconds()
         distributed = run_on(pool)
+        # the workers' CPU (what bench/batch_scaling.py divides by the work): 10 replays
+        used = pool.cpu_seconds() - cpu
     assert distributed == local
+    assert used > 0.1
 
 
 def test_a_real_log_scores_against_its_known_route(sample_db: Path, drives: list[TuneDrive],
