@@ -36,7 +36,8 @@ from navsvc.tuning.run import TuneRun, evaluate_sets, result_profile, tune
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--budget", type=int, default=33,
-                        help="parameter sets per method (33: the GA's start and 4 generations)")
+                        help="parameter sets per method (33: the defaults and 32 more; a GA "
+                        "of 8 with 2 elites: 5 generations and a part)")
     parser.add_argument("--population", type=int, default=8, help="GA population")
     parser.add_argument("--tune-drives", type=int, default=6)
     parser.add_argument("--report-drives", type=int, default=10)

@@ -35,6 +35,23 @@ from roadgraph import RoadGraph, RoadGraphError
 
 SCHEDULER_TIMEOUT_S = 10.0  # to connect to a cluster named by --scheduler
 
+# The Dask settings of a local cluster (bench/batch_scaling.py measured each):
+# * the workers' statistical profiler samples every 10 ms holding the GIL: a replay took 1.35x
+#   as long on one worker as in this process; without it, the same;
+# * the event loops' housekeeping (a health tick every 20 ms, the memory monitor every 100 ms,
+#   the system monitor every 500 ms) kept an idle cluster of 2 workers at 7 % of a core (its
+#   scheduler and nannies 3.9 %, each worker 1.7 %); at 1 s / 1 s / 5 s, 1.2 %. Replays and
+#   traces are seconds of CPU-bound work with a few MB in memory: nothing needs faster checks;
+# * one thread per worker for every numeric library (Dask sets OMP, MKL and OpenBLAS; numba
+#   too, should a kernel ever run parallel): with 2 workers on 2 cores more would oversubscribe.
+LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": 1,
+}
+
 
 @lru_cache(maxsize=4)
 def worker_graph(path: str) -> RoadGraph:
@@ -47,6 +64,7 @@ class Executor:
 
     workers = 1
     where = "in process"
+    distributed = False  # True on Dask
 
     def share(self, value: Any) -> Any:
         """A handle to ``value`` for the tasks' arguments (sent to each worker once)."""
@@ -61,6 +79,11 @@ class Executor:
         """Run ``fn(*args)`` once in every worker process (here: once in this one)."""
         fn(*args)
 
+    def cpu_seconds(self) -> float:
+        """CPU seconds used so far by the processes that run the tasks (here: this one; on
+        Dask: the workers, each process's every thread), for CPU per task against wall."""
+        return time.process_time()
+
     def close(self) -> None:
         """Stop what this executor started (a local cluster)."""
 
@@ -73,6 +96,8 @@ class Executor:
 
 class DaskExecutor(Executor):
     """Tasks on a Dask distributed cluster: a local one it starts, or one it joins."""
+
+    distributed = True
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None) -> None:
         try:
@@ -93,11 +118,9 @@ class DaskExecutor(Executor):
             self.where = f"on the Dask cluster at {scheduler}"
         else:
             n = workers or os.cpu_count() or 1
+            dask.config.set(LOCAL_CLUSTER_CONFIG)
             # every port on loopback; the scheduler's HTTP server (health, metrics) on a free
             # port (with None it still took 8787, and a second cluster warned of the clash)
-            # the workers' statistical profiler samples every 10 ms and holds the GIL: a
-            # replay took 1.35x as long on one worker as in this process; without it, the same
-            dask.config.set({"distributed.worker.profile.enabled": False})
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                          host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                          silence_logs=40)  # type: ignore[no-untyped-call]
@@ -119,6 +142,9 @@ class DaskExecutor(Executor):
 
     def warm_up(self, fn: Callable[..., Any], *args: Any) -> None:
         self._client.run(fn, *args)
+
+    def cpu_seconds(self) -> float:
+        return float(sum(self._client.run(time.process_time).values()))
 
     def close(self) -> None:
         self._client.close()  # type: ignore[no-untyped-call]
@@ -195,8 +221,13 @@ def match_files(map_path: str, jobs: Sequence[tuple[str, str]], config: HmmConfi
 
 
 def chunks(items: Sequence[Any], workers: int, per_worker: int = 4) -> list[list[Any]]:
-    """``items`` in order, in about ``per_worker`` chunks per worker (one each in process)."""
-    size = 1 if workers <= 1 else max(1, -(-len(items) // (workers * per_worker)))
+    """``items`` in order, in about ``per_worker`` chunks per worker; ``workers`` 0 (in
+    process, where a task costs nothing): one item per chunk, for the progress bar.
+
+    On Dask even one worker gets chunks: one trace per task made 1 worker match 32 traces/s
+    against 117 in process (300-point traces of about 9 ms CPU each, and a task's round trip
+    about as long), measured by bench/batch_scaling.py."""
+    size = 1 if workers <= 0 else max(1, -(-len(items) // (workers * per_worker)))
     return [list(items[i:i + size]) for i in range(0, len(items), size)]
 
 

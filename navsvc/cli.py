@@ -543,7 +543,7 @@ def _match_batch(args: argparse.Namespace, traces: list[Path]) -> int:
     with _executor(args) as pool, tqdm(total=len(jobs), desc="match", unit="trace",
                                        disable=args.quiet, leave=False) as bar:
         pool.warm_up(open_map, str(args.map.resolve()))
-        parts = chunks(jobs, pool.workers if pool.where != "in process" else 1)
+        parts = chunks(jobs, pool.workers if pool.distributed else 0)
         done: list[Any] = [None] * len(parts)
         tasks = [(str(args.map.resolve()), part, config) for part in parts]
         for i, found in pool.run(match_files, tasks):

@@ -8,8 +8,10 @@ those names; :func:`navsvc.session.apply_profile` sets them.
 
 Both searches work in the unit cube: a coordinate ``u`` in [0, 1] per parameter maps to its
 range linearly or logarithmically (a set: ``u`` picks an element, evenly spaced). A genotype is
-``bits`` per parameter, the integer read as ``u = k / (2^bits - 1)`` (seed: Mayhew 1999,
-section 5.6, parameters as bit-string genotypes). Pure.
+``bits`` per parameter (seed: Mayhew 1999, section 5.6, parameters as bit-string genotypes),
+in Gray code: the integer ``k`` of ``u = k / (2^bits - 1)`` is written as ``k ^ (k >> 1)``, so
+that neighbouring values differ in one bit and a mutation's single flip can always step a
+parameter to its neighbour (in plain binary, 127 to 128 flips all 8 bits). Pure.
 """
 
 from __future__ import annotations
@@ -170,23 +172,26 @@ def decode(params: Sequence[Parameter], u: Sequence[float]) -> dict[str, Value]:
 
 
 def genotype_to_unit(params: Sequence[Parameter], bits: Sequence[int]) -> list[float]:
-    """Unit coordinates of a bit string (each parameter's ``bits``, most significant first)."""
+    """Unit coordinates of a bit string (each parameter's ``bits`` of Gray code, most
+    significant first)."""
     u, at = [], 0
     for p in params:
-        k = 0
+        k, binary = 0, 0
         for b in bits[at:at + p.bits]:
-            k = 2 * k + int(b)
+            binary ^= int(b)  # Gray to binary: each bit is the XOR of the Gray bits so far
+            k = 2 * k + binary
         u.append(k / (2 ** p.bits - 1))
         at += p.bits
     return u
 
 
 def unit_to_genotype(params: Sequence[Parameter], u: Sequence[float]) -> list[int]:
-    """The bit string nearest to unit coordinates ``u``."""
+    """The bit string (Gray code) nearest to unit coordinates ``u``."""
     bits: list[int] = []
     for p, x in zip(params, u, strict=True):
         k = round(min(max(x, 0.0), 1.0) * (2 ** p.bits - 1))
-        bits += [(k >> s) & 1 for s in range(p.bits - 1, -1, -1)]
+        g = k ^ (k >> 1)
+        bits += [(g >> s) & 1 for s in range(p.bits - 1, -1, -1)]
     return bits
 
 

@@ -2,9 +2,11 @@
 
 Each parameter set the search proposes is evaluated on every drive (one task per drive, so an
 executor spreads them over workers; see :mod:`navsvc.batch`), and its fitness is the mean drive
-score. Evaluations are cached by their parameter values: the GA often proposes a genotype
-again, and that costs nothing. The budget counts parameter sets evaluated (each one replay per
-drive); the defaults are the first of them, so the profile can say what tuning gained.
+score. Evaluations are cached by their parameter values: the GA's elites, and any point
+proposed again, cost nothing. The budget counts parameter sets evaluated (each one replay per
+drive), all of it spent: the defaults are the first (so the profile can say what tuning
+gained), and a last GA generation larger than what is left is evaluated in part. The result
+is the best parameter set evaluated.
 
 The whole run (search state, random generator, cache) is :class:`TuneRun`, saved after each
 step and loaded by ``--resume``: a resumed run ends where an uninterrupted one would.
@@ -27,7 +29,7 @@ from navsvc.tuning.profile import changed, current_value, defaults, profile_docu
 from navsvc.tuning.replay import TuneDrive, replay
 from navsvc.tuning.search import Search, search_from_json, search_to_json, start_search
 
-STATE_FORMAT = "navsvc-tune-state/1"
+STATE_FORMAT = "navsvc-tune-state/2"  # 2: the GA of Gray codes and tournaments
 
 
 def score_task(map_path: str, drive: TuneDrive, options: dict[str, Any],
@@ -77,13 +79,18 @@ class TuneRun:
         return None if found is None else float(found["fitness"])
 
     def best(self) -> tuple[dict[str, Value], float]:
-        """The best parameter values found (the defaults when nothing beat them)."""
-        u, f = self.search.best
+        """The best parameter values evaluated (the defaults when nothing beat them; of
+        equals, the first evaluated)."""
         base = self.default_values
         base_f = self.fitness_of(base)
-        if f is None or (base_f is not None and base_f >= f):
+        key, f = None, None
+        for k, found in self.cache.items():
+            if f is None or found["fitness"] > f:
+                key, f = k, float(found["fitness"])
+        if key is None or f is None or (base_f is not None and base_f >= f):
             return base, base_f if base_f is not None else float("nan")
-        return decode(self.params, u), f
+        values = json.loads(key)
+        return {p.name: values[p.name] for p in self.params}, f
 
     def to_json(self) -> dict[str, Any]:
         return {"format": STATE_FORMAT, "method": self.method,
@@ -94,7 +101,12 @@ class TuneRun:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> TuneRun:
-        if d.get("format") != STATE_FORMAT:
+        found = d.get("format")
+        if isinstance(found, str) and found.startswith("navsvc-tune-state/") and \
+                found != STATE_FORMAT:
+            raise ConfigError(f"a tuning state of another navsvc version ({found}; this one "
+                              f"reads {STATE_FORMAT}): start the run again")
+        if found != STATE_FORMAT:
             raise ConfigError("not a tuning state (from `navsvc tune`)")
         params = tuple(BY_NAME[n] for n in d["params"])
         return cls(d["method"], params, d["seed"], d["budget"], tuple(d["drives"]),
@@ -153,7 +165,16 @@ def tune(run: TuneRun, executor: Executor, map_path: str, drives: Sequence[TuneD
         if not points:
             break
         sets = [decode(run.params, u) for u in points]
-        if run.evaluations + len({_key(s) for s in sets} - set(run.cache)) > run.budget:
+        new = [s for k, s in {_key(s): s for s in sets}.items() if k not in run.cache]
+        left = run.budget - run.evaluations
+        if len(new) > left:
+            # The last generation does not fit: its first ``left`` new points are evaluated
+            # (each may be the best found) and the search is not told. A run resumed with a
+            # larger budget proposes the same generation, finds these in the cache, and ends
+            # where an uninterrupted run would.
+            spend(new[:left])
+            if save:
+                save(run)
             break
         spend(sets)
         fitnesses = [run.fitness_of(s) for s in sets]

@@ -107,7 +107,8 @@ def test_chunks_keep_order_and_size() -> None:
     from navsvc.batch import chunks
 
     assert chunks(list(range(10)), 2) == [[0, 1], [2, 3], [4, 5], [6, 7], [8, 9]]
-    assert chunks(list(range(3)), 1) == [[0], [1], [2]]
+    assert chunks(list(range(3)), 0) == [[0], [1], [2]]  # in process: one each
+    assert chunks(list(range(8)), 1) == [[0, 1], [2, 3], [4, 5], [6, 7]]  # 1 worker: chunks
     assert chunks(list(range(3)), 8) == [[0], [1], [2]]
     assert chunks([], 2) == []
 

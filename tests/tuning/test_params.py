@@ -59,9 +59,15 @@ def test_genotypes_round_trip(bits: list[int]) -> None:
     assert unit_to_genotype(params, genotype_to_unit(params, bits)) == bits
 
 
-def test_genotype_bits_are_most_significant_first() -> None:
+def test_genotype_bits_are_gray_code_most_significant_first() -> None:
     params = (Parameter("a", "x", 0.0, 3.0, bits=2), Parameter("b", "x", 0.0, 1.0, bits=1))
-    assert decode(params, genotype_to_unit(params, [1, 0, 1])) == {"a": 2.0, "b": 1.0}
+    # Gray 11 is binary 10: a = 2; Gray 10 is binary 11: a = 3
+    assert decode(params, genotype_to_unit(params, [1, 1, 1])) == {"a": 2.0, "b": 1.0}
+    assert decode(params, genotype_to_unit(params, [1, 0, 0])) == {"a": 3.0, "b": 0.0}
+    eight = (Parameter("c", "x", 0.0, 255.0, bits=8, integer=True),)
+    for k in range(255):  # neighbouring values differ in exactly one bit
+        a, b = (unit_to_genotype(eight, [v / 255.0]) for v in (k, k + 1))
+        assert sum(x != y for x, y in zip(a, b)) == 1
 
 
 def test_selection_and_its_errors() -> None:

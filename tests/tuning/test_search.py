@@ -74,3 +74,14 @@ def test_a_resumed_search_continues_exactly() -> None:
         part = drive(first, bowl, 18)
         resumed = search_from_json(PARAMS, json.loads(json.dumps(search_to_json(first))))
         assert part + drive(resumed, bowl, 36 - len(part)) == whole, method
+
+
+def test_the_ga_starts_around_its_start_point_and_fits_a_tiny_genotype_space() -> None:
+    search = Genetic.start(PARAMS, [0.5] * 3, seed=1, size=12)
+    units = search.propose()
+    assert units[0] == [round(0.5 * 255) / 255] * 3
+    near = [u for u in units[1:] if max(abs(x - 0.5) for x in u) < 0.5]
+    assert len(near) >= 8  # 8 mutants of the start (steps of 0.15), 3 drawn at random
+    assert len({tuple(u) for u in units}) == 12
+    one_bit = (Parameter("b", "test", 0.0, 1.0, bits=1),)
+    assert len(Genetic.start(one_bit, [0.0], seed=1, size=6).population) == 6

@@ -57,8 +57,9 @@ def test_a_resumed_run_ends_where_a_whole_one_does(sample_db: Path, drive_files:
     assert main(tune_args(sample_db, drive_files, whole, *common, "--budget", "9")) == 0
     assert main(tune_args(sample_db, drive_files, part, *common, "--budget", "5",
                           "--resume", str(state))) == 0
-    # the start, then one generation of 4 whose first is the start again (cached)
-    assert json.loads(state.read_text())["evaluations"] == 4
+    # the start, one generation of 4 whose first is the start again (cached), and the
+    # next generation's first new point: the budget is spent to the last evaluation
+    assert json.loads(state.read_text())["evaluations"] == 5
     assert main(tune_args(sample_db, drive_files, part, *common, "--budget", "9",
                           "--resume", str(state))) == 0
     assert json.loads(part.read_text()) == json.loads(whole.read_text())
@@ -67,6 +68,13 @@ def test_a_resumed_run_ends_where_a_whole_one_does(sample_db: Path, drive_files:
                           "--resume", str(state))) == 1
     assert "the state is of another run: its method is 'ga', this command's 'hill'" in \
         capsys.readouterr().err
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({**json.loads(state.read_text()),
+                               "format": "navsvc-tune-state/1"}))
+    assert main(tune_args(sample_db, drive_files, part, *common, "--budget", "9",
+                          "--resume", str(old))) == 1
+    assert (f"{old}: a tuning state of another navsvc version (navsvc-tune-state/1; this "
+            "one reads navsvc-tune-state/2): start the run again") in capsys.readouterr().err
 
 
 def test_dask_local_cluster_gives_the_answer_of_one_process(sample_db: Path,
@@ -75,15 +83,19 @@ def test_dask_local_cluster_gives_the_answer_of_one_process(sample_db: Path,
     def run_on(pool: Executor) -> dict[str, object]:
         run = TuneRun.start("ga", select(TUNED.split(",")), 2, 5, [d.name for d in drives],
                             {"profile": {"parameters": MISTUNED}}, population=4)
-        with pool:
-            tune(run, pool, str(sample_db), drives)
+        tune(run, pool, str(sample_db), drives)
         return result_profile(run)
 
     local = run_on(Executor())
     with executor(2) as pool:
         assert pool.workers == 2 and "local Dask cluster of 2" in pool.where
+        assert pool.distributed
+        cpu = pool.cpu_seconds()
         distributed = run_on(pool)
+        # the workers' CPU (what bench/batch_scaling.py divides by the work): 10 replays
+        used = pool.cpu_seconds() - cpu
     assert distributed == local
+    assert used > 0.1
 
 
 def test_a_real_log_scores_against_its_known_route(sample_db: Path, drives: list[TuneDrive],
