@@ -147,5 +147,5 @@ def merge_expositions(scrapes: Mapping[str, str], up: Mapping[str, bool]) -> byt
     for worker, answered in up.items():
         workers_up.add_sample("navsvc_worker_up", {"worker": worker}, 1.0 if answered else 0.0)
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(_Families([*merged.values(), workers_up]))  # type: ignore[arg-type]
+    registry.register(_Families([*merged.values(), workers_up]))
     return generate_latest(registry)

@@ -486,7 +486,8 @@ class SessionStore:
             raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
                                 f"{self.max_sessions_per_owner}")
         now = self._clock()
-        session = LiveSession(id=self.id_prefix + secrets.token_hex(8), owner=owner, vehicle_id=vehicle_id,
+        session = LiveSession(id=self.id_prefix + secrets.token_hex(8), owner=owner,
+                              vehicle_id=vehicle_id,
                               options=options, created_unix=time.time(),
                               vehicle=VehicleSession(config, self.graph), last_seen=now,
                               checkpoint_clock=now)

@@ -15,8 +15,8 @@
 | ``NAVSVC_VIEW_HISTORY`` | 7200 | batches with fixes or positions kept per watched session |
 | ``NAVSVC_PROFILES`` | (none) | folder of tuned profiles a session may name (``navsvc tune``) |
 | ``NAVSVC_WORKERS`` | 1 | ``navsvc serve``: worker processes behind HAProxy (navsvc.cluster) |
-| ``NAVSVC_WORKER_ID`` | (none) | this server is worker k: session ids ``w<k>-...``, trip log ``<triplog>.w<k>`` |
-| ``NAVSVC_PEERS`` | (none) | every worker's URL in worker order: ``/v1/sessions`` and ``/v1/metrics`` cover them all |
+| ``NAVSVC_WORKER_ID`` | (none) | worker k: session ids ``w<k>-...``, trip log ``<triplog>.w<k>`` |
+| ``NAVSVC_PEERS`` | (none) | all workers' URLs in order: fleet-wide ``/v1/sessions``, metrics |
 """
 
 from __future__ import annotations
