@@ -259,9 +259,13 @@ def serve_cluster(plan: ClusterPlan, worker_args: Sequence[str], verbose: bool =
         raise ConfigError(f"{config}: HAProxy refused the generated config: "
                           f"{checked.stderr.strip() or checked.stdout.strip()}")
     env = {k: v for k, v in os.environ.items() if k != "NAVSVC_WORKERS"}
+    # the workers run the supervisor's navsvc, whatever the current directory holds (in the
+    # image, /app/navsvc beside the installed one: its numba cache is the installed one's)
+    code = str(Path(__file__).resolve().parent.parent)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [code, env.get("PYTHONPATH")]))
     children = [Child("balancer (HAProxy)", [haproxy, "-W", "-db", "-f", str(config)], env)]
     for b in plan.workers:
-        command = [sys.executable, "-m", "navsvc", *(["-v"] if verbose else []), "serve",
+        command = [sys.executable, "-P", "-m", "navsvc", *(["-v"] if verbose else []), "serve",
                    *worker_args, "--host", b.host, "--port", str(b.port),
                    "--triplog", str(plan.triplog), "--worker-id", str(b.worker_id)]
         children.append(Child(f"worker {b.worker_id} ({b.url})", command,
