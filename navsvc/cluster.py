@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 HEALTH_PATH = "/v1/healthz"
 SESSIONS_PATH = "/v1/sessions/"
 CHECK_INTERVAL_MS = 500  # HAProxy's health check of each worker
+CHECK_TIMEOUT_S = 5
 RESTART_BACKOFF_S = (0.0, 1.0, 2.0, 5.0, 10.0)  # after a worker's successive quick deaths
 STABLE_AFTER_S = 30.0  # a worker up this long is healthy again: its next death restarts at once
 STOP_TIMEOUT_S = 20.0  # SIGTERM, then this long to save checkpoints, then SIGKILL
@@ -104,8 +105,8 @@ def haproxy_config(backends: Sequence[Backend], bind: str, maxconn: int = 10_000
         "    option redispatch",
         "    default-server init-addr last,libc,none  # start even if a worker's name does "
         "not resolve yet",
-        "    http-error status 503 content-type application/json string "
-        f"'{_UNAVAILABLE}'",
+        *(f"    http-error status {status} content-type application/json string "
+          f"'{_UNAVAILABLE}'" for status in (502, 503, 504)),
     ]
     resolve = ""
     if nameserver is not None:
@@ -116,14 +117,17 @@ def haproxy_config(backends: Sequence[Backend], bind: str, maxconn: int = 10_000
         lines.append(f"    use_backend worker{b.worker_id} if "
                      f"{{ path_beg {SESSIONS_PATH}{session_prefix(b.worker_id)} }}")
     lines.append("    default_backend any_worker")
+    # A session's worker is its only server: not health-checked, as marking it down would
+    # only refuse what it might still answer (a refused connection is retried, then 503).
     for b in backends:
         lines += [f"backend worker{b.worker_id}",
-                  f"    option httpchk GET {HEALTH_PATH}",
-                  f"    server w{b.worker_id} {b.host}:{b.port} check inter "
-                  f"{CHECK_INTERVAL_MS}ms fall 2 rise 1{resolve}"]
-    lines += ["backend any_worker", "    balance roundrobin"]
-    lines += [f"    server w{b.worker_id} {b.host}:{b.port} track worker{b.worker_id}/"
-              f"w{b.worker_id}{resolve}" for b in backends]
+                  f"    server w{b.worker_id} {b.host}:{b.port}{resolve}"]
+    # New sessions and the rest go to the workers that pass the health check.
+    lines += ["backend any_worker", "    balance roundrobin",
+              f"    option httpchk GET {HEALTH_PATH}",
+              f"    timeout check {CHECK_TIMEOUT_S}s  # a busy worker is slow, not dead"]
+    lines += [f"    server w{b.worker_id} {b.host}:{b.port} check inter {CHECK_INTERVAL_MS}ms "
+              f"fall 2 rise 1{resolve}" for b in backends]
     return "\n".join(lines) + "\n"
 
 

@@ -101,7 +101,7 @@ def packets(sample_graph: RoadGraph) -> list[dict]:
 def one_on_each_worker(client: httpx.Client) -> dict[str, str]:
     """Create sessions until there is one on each worker: their ids by worker ("w0", "w1")."""
     ids: dict[str, str] = {}
-    for _ in range(8):
+    for _ in range(16):
         sid = client.post("/sessions", json={"vehicle_id": "fleet"}).json()["id"]
         ids.setdefault(sid.split("-")[0], sid)
         if len(ids) == 2:
@@ -191,7 +191,10 @@ def test_kill_9_of_one_worker_loses_nothing_and_the_other_never_notices(
     # a new connection: HAProxy closes a client's kept-alive one whose worker died, as any
     # server restarting would
     client = cluster.client()
-    assert client.get(f"/sessions/{victim}").status_code == 503  # its worker is down
+    during = client.get(f"/sessions/{victim}")  # its worker is down, or back already
+    assert during.status_code in (200, 502, 503, 504)
+    if during.status_code != 200:  # the API's error shape, from HAProxy
+        assert during.json()["error"]["code"] == "unavailable"
     wait_until(lambda: client.get(f"/sessions/{victim}").status_code == 200)
     assert worker_pid(cluster, 1) != old  # the supervisor started it again
     info = client.get(f"/sessions/{victim}").json()
