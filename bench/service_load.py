@@ -9,7 +9,8 @@ this process (asyncio, one WebSocket per session). Sessions replay a simulated d
 - real rate: every 0.1 s each session sends the packets of that 0.1 s (and the GPS fix when
   there is one), each session from its own point of the drive (up to 60 s in) and at its
   own phase of the 0.1 s; latency is from sending a message that holds a GPS fix to
-  receiving the reply with its matched position. ``gyro_accel`` sessions send what the issue
+  receiving the reply with its matched position. A server far behind stops the run at 1.5x
+  its length ("unsent ticks": what was left). ``gyro_accel`` sessions send what the issue
   names, 100 Hz inertial (10 IMU packets a message) and 1 Hz GPS: 101 packets/s a session;
   ``gyro_odometer`` sessions also send a 50 Hz wheel odometer (151 packets/s).
 - GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
@@ -58,6 +59,7 @@ from tests.api.server import Server, free_port, start_process, start_server
 
 START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
 GOLDEN_RATIO = (1.0 + 5.0 ** 0.5) / 2.0  # k x this, mod 1: evenly spread, never repeating
+DEADLINE_FACTOR = 1.5  # a real-rate run stops sending at 1.5x its length (the server is behind)
 
 
 def rss_mb(pid: int) -> float:
@@ -196,6 +198,7 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
     ids = await open_sessions(server, sessions, sensors)
     latencies: list[float] = []
     late = 0
+    unsent = 0  # ticks not sent by the deadline (a server far behind stops the run)
     sent = 0
     offered = sum(len(ticks[(k * 37) % START_SPREAD_TICKS + i])
                   for k in range(sessions) for i in range(int(seconds * 10))) / seconds
@@ -209,13 +212,14 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
                 ticks[(k * 37) % START_SPREAD_TICKS:(k * 37) % START_SPREAD_TICKS
                       + int(seconds * 10)]] for k in range(sessions)]
     start = time.perf_counter() + 0.5
+    deadline = start + DEADLINE_FACTOR * seconds
     meter = CpuMeter(server)
     gc.collect()
     gc.disable()  # this process's full collections (100+ ms with 1,000 sockets) are not the
     # server's latency: keep them out of the measurement
 
     async def one(k: int, ws: Any) -> None:
-        nonlocal late, sent
+        nonlocal late, sent, unsent
         # each session sends at its own phase of the 0.1 s tick, as independent vehicles do
         # (k / sessions put sessions / 10 of them on the same instant, in bursts)
         offset = 0.1 * ((k * GOLDEN_RATIO) % 1.0)
@@ -231,6 +235,9 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
                 await asyncio.sleep(wait)
             elif wait < -0.1:
                 late += 1
+                if time.perf_counter() > deadline:
+                    unsent += sum(1 for b in encoded[k][i:] if b)
+                    break
             t0 = time.perf_counter()
             reply = await _exchange(ws, batch)
             sent += reply["accepted"] + len(reply["rejected"])
@@ -253,7 +260,8 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
             "cores_needed": offered * cpu_per_packet,
             "latency_p50_ms": statistics.median(lat_ms),
             "latency_p99_ms": lat_ms[min(len(lat_ms) - 1, int(0.99 * len(lat_ms)))],
-            "late_ticks": late, **cpu, "load_average": os.getloadavg()[0],
+            "late_ticks": late, "unsent_ticks": unsent, **cpu,
+            "load_average": os.getloadavg()[0],
             "rss_before_mb": before, "rss_after_mb": after,
             "mb_per_session": (after - before) / sessions}
 
@@ -389,11 +397,12 @@ def print_tables(rows: list[dict[str, Any]]) -> None:
                 "from sending a message with a GPS fix to its position",
                 ["server", "scenario", "sessions", "offered/s", "packets/s", "server cores",
                  "generator cores", "others' cores", "CPU us/packet", "cores needed",
-                 "p50 ms", "p99 ms", "late ticks", "MB/session"],
+                 "p50 ms", "p99 ms", "late ticks", "unsent ticks", "MB/session"],
                 [[r["server"], r["scenario"], r["sessions"], r["offered_per_s"],
                   r["packets_per_s"], r["server_cpu"], r["client_cpu"], r["others_cpu"],
                   r["server_cpu_us_per_packet"], r["cores_needed"], r["latency_p50_ms"],
-                  r["latency_p99_ms"], r["late_ticks"], r["mb_per_session"]] for r in real])
+                  r["latency_p99_ms"], r["late_ticks"], r["unsent_ticks"], r["mb_per_session"]]
+                 for r in real])
 
 
 if __name__ == "__main__":
