@@ -22,6 +22,7 @@ prints one for workers on other machines (README, "Serving on more machines").
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import os
 import resource
@@ -48,6 +49,7 @@ RESTART_BACKOFF_S = (0.0, 1.0, 2.0, 5.0, 10.0)  # after a worker's successive qu
 STABLE_AFTER_S = 30.0  # a worker up this long is healthy again: its next death restarts at once
 STOP_TIMEOUT_S = 20.0  # SIGTERM, then this long to save checkpoints, then SIGKILL
 POLL_S = 0.2
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def session_prefix(worker_id: int) -> str:
@@ -149,6 +151,24 @@ def find_haproxy() -> str:
     return path
 
 
+def restart_delay_s(quick_deaths: int) -> float:
+    """How long to wait before starting a child again after its ``quick_deaths``-th death in
+    a row within :data:`STABLE_AFTER_S` of starting (0: it had run long enough)."""
+    if quick_deaths <= 0:
+        return 0.0
+    return RESTART_BACKOFF_S[min(quick_deaths - 1, len(RESTART_BACKOFF_S) - 1)]
+
+
+def _end_with_parent() -> None:
+    """In a child before it runs: SIGTERM it when the supervisor dies, even by SIGKILL
+    (Linux's PR_SET_PDEATHSIG; elsewhere nothing)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+    except (OSError, AttributeError):
+        pass
+
+
 @dataclass
 class Child:
     """A process the supervisor keeps running: its command, environment and restarts."""
@@ -161,7 +181,8 @@ class Child:
     quick_deaths: int = 0
 
     def start(self) -> None:
-        self.process = subprocess.Popen(self.command, env=self.env)
+        self.process = subprocess.Popen(self.command, env=self.env,
+                                        preexec_fn=_end_with_parent)
         self.started = time.monotonic()
         log.info("%s started (pid %d)", self.name, self.process.pid)
 
@@ -201,9 +222,7 @@ class Supervisor:
                 log.warning("%s (pid %d) exited with %s after %.1f s: starting it again",
                             child.name, process.pid, process.returncode, lived)
                 self._exited[child.name] = now
-            wait = RESTART_BACKOFF_S[min(child.quick_deaths - 1, len(RESTART_BACKOFF_S) - 1)] \
-                if child.quick_deaths else 0.0
-            if now - self._exited[child.name] >= wait:
+            if now - self._exited[child.name] >= restart_delay_s(child.quick_deaths):
                 del self._exited[child.name]
                 child.start()
 

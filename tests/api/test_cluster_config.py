@@ -5,15 +5,24 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from navsvc.api.settings import Settings
-from navsvc.cluster import Backend, ClusterPlan, find_haproxy, haproxy_config, main
+from navsvc.cluster import (
+    Backend,
+    ClusterPlan,
+    find_haproxy,
+    haproxy_config,
+    main,
+    restart_delay_s,
+)
 from navsvc.errors import ConfigError
 from navsvc.metrics import Metrics, merge_expositions
 
@@ -127,3 +136,62 @@ def test_workers_must_be_a_count() -> None:
     done = subprocess.run([sys.executable, "-m", "navsvc", "serve", "--workers", "0"],
                           capture_output=True, text=True, cwd=ROOT)
     assert done.returncode == 2 and "--workers: 0: must be from 1 to 64" in done.stderr
+
+
+def test_a_child_that_keeps_dying_is_restarted_later_each_time() -> None:
+    assert restart_delay_s(0) == 0.0  # it had run a while: again at once (a kill -9, say)
+    assert [restart_delay_s(n) for n in range(1, 8)] == [0.0, 1.0, 2.0, 5.0, 10.0, 10.0, 10.0]
+
+
+SUPERVISE = """
+import sys, time
+from navsvc.cluster import Child, Supervisor
+marks = sys.argv[1]
+child = Child("child", [sys.executable, "-c",
+    "import os, sys, time; open(sys.argv[1], 'a').write(f'{os.getpid()}\\\\n'); "
+    "time.sleep(float(sys.argv[2]))", marks, sys.argv[2]], {})
+sys.exit(Supervisor([child]).run())
+"""
+
+
+def _started(marks: Path, count: int, timeout_s: float = 30.0) -> list[int]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        pids = [int(p) for p in marks.read_text().split()] if marks.exists() else []
+        if len(pids) >= count:
+            return pids
+        time.sleep(0.05)
+    raise AssertionError(f"fewer than {count} starts: {marks.read_text()}")
+
+
+def test_the_supervisor_restarts_a_child_that_exits_and_stops_it_on_sigterm(
+        tmp_path: Path) -> None:
+    marks = tmp_path / "starts"
+    supervisor = subprocess.Popen([sys.executable, "-c", SUPERVISE, str(marks), "0.2"],
+                                  cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        pids = _started(marks, 3)  # it exits after 0.2 s; it is started again, and again
+        assert len(set(pids)) == len(pids)
+    finally:
+        supervisor.send_signal(signal.SIGTERM)
+        assert supervisor.wait(timeout=30) == 0
+
+
+def test_children_end_when_the_supervisor_is_killed(tmp_path: Path) -> None:
+    marks = tmp_path / "starts"
+    supervisor = subprocess.Popen([sys.executable, "-c", SUPERVISE, str(marks), "60"],
+                                  cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    child = _started(marks, 1)[0]
+    supervisor.kill()  # no shutdown code runs: the kernel ends the child (PR_SET_PDEATHSIG)
+    supervisor.wait(timeout=10)
+    deadline = time.monotonic() + 10.0
+    while Path(f"/proc/{child}").exists() and "Z" not in _state(child):
+        assert time.monotonic() < deadline, "the child outlived its supervisor"
+        time.sleep(0.05)
+
+
+def _state(pid: int) -> str:
+    try:
+        return (Path(f"/proc/{pid}") / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"
