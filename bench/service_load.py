@@ -82,17 +82,29 @@ def machine_busy_s() -> float:
 
 
 def server_pids(server: Server) -> list[int]:
-    """The server's processes: it and its children (a supervisor's workers and HAProxy)."""
-    pids = [server.process.pid]
+    """The server's processes: it and all its descendants (a supervisor's workers, HAProxy's
+    master and the worker it forks)."""
+    parents: dict[int, list[int]] = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
             except OSError:
                 continue
-            if ppid == server.process.pid:
-                pids.append(int(entry.name))
+            parents.setdefault(ppid, []).append(int(entry.name))
+    pids, todo = [], [server.process.pid]
+    while todo:
+        pid = todo.pop()
+        pids.append(pid)
+        todo += parents.get(pid, [])
     return pids
+
+
+def is_balancer(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip() == "haproxy"
+    except OSError:
+        return False
 
 
 class CpuMeter:
@@ -101,8 +113,10 @@ class CpuMeter:
 
     def __init__(self, server: Server) -> None:
         self.pids = server_pids(server)
+        self.balancer_pids = [p for p in self.pids if is_balancer(p)]
         self.start = time.perf_counter()
         self.server = sum(map(cpu_s, self.pids))
+        self.balancer = sum(map(cpu_s, self.balancer_pids))
         self.client = time.process_time()
         self.machine = machine_busy_s()
 
@@ -110,9 +124,11 @@ class CpuMeter:
         """Cores used (CPU seconds per second) by the server, the generator and the rest."""
         elapsed = time.perf_counter() - self.start
         server = (sum(map(cpu_s, self.pids)) - self.server) / elapsed
+        balancer = (sum(map(cpu_s, self.balancer_pids)) - self.balancer) / elapsed
         client = (time.process_time() - self.client) / elapsed
         others = (machine_busy_s() - self.machine) / elapsed - server - client
-        return {"server_cpu": server, "client_cpu": client, "others_cpu": max(0.0, others),
+        return {"server_cpu": server, "balancer_cpu": balancer, "client_cpu": client,
+                "others_cpu": max(0.0, others),
                 "server_cpu_s": server * elapsed, "client_cpu_s": client * elapsed}
 
 
@@ -384,10 +400,10 @@ def print_tables(rows: list[dict[str, Any]]) -> None:
     sat = [r for r in rows if r["scenario"] == "throughput"]
     print_table("saturation: sessions send as fast as the server answers (gyro_odometer, "
                 "batches of 100); cores = CPU seconds per second",
-                ["server", "sessions", "packets/s", "server cores", "generator cores",
-                 "others' cores", "packets/s per server core", "load avg"],
+                ["server", "sessions", "packets/s", "server cores", "of which HAProxy",
+                 "generator cores", "others' cores", "packets/s per server core", "load avg"],
                 [[r["server"], r["sessions"], r["packets_per_s"], r["server_cpu"],
-                  r["client_cpu"], r["others_cpu"], r["packets_per_cpu_s"],
+                  r["balancer_cpu"], r["client_cpu"], r["others_cpu"], r["packets_per_cpu_s"],
                   r["load_average"]] for r in sat])
     for w, ratio in scaling(rows).items():
         print(f"  {w} worker(s) / 1 worker: packets/s x{ratio['packets_per_s_ratio']:.2f}, "
@@ -396,10 +412,12 @@ def print_tables(rows: list[dict[str, Any]]) -> None:
     print_table("real rate: every 0.1 s each session sends that 0.1 s of packets; latency "
                 "from sending a message with a GPS fix to its position",
                 ["server", "scenario", "sessions", "offered/s", "packets/s", "server cores",
-                 "generator cores", "others' cores", "CPU us/packet", "cores needed",
+                 "of which HAProxy", "generator cores", "others' cores", "CPU us/packet",
+                 "cores needed",
                  "p50 ms", "p99 ms", "late ticks", "unsent ticks", "MB/session"],
                 [[r["server"], r["scenario"], r["sessions"], r["offered_per_s"],
-                  r["packets_per_s"], r["server_cpu"], r["client_cpu"], r["others_cpu"],
+                  r["packets_per_s"], r["server_cpu"], r["balancer_cpu"], r["client_cpu"],
+                  r["others_cpu"],
                   r["server_cpu_us_per_packet"], r["cores_needed"], r["latency_p50_ms"],
                   r["latency_p99_ms"], r["late_ticks"], r["unsent_ticks"], r["mb_per_session"]]
                  for r in real])
