@@ -12,6 +12,10 @@ ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 \
     NAVSVC_MAP=/data/monaco.db NAVSVC_HOST=0.0.0.0 NAVSVC_PORT=8000 \
     NUMBA_CACHE_DIR=/opt/navsvc-cache/numba
 
+# HAProxy from Debian: `navsvc serve --workers N` in one container, and the balancer service
+# of docker-compose.yml (the same image).
+RUN apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+      haproxy && rm -rf /var/lib/apt/lists/*
 RUN python3 -m venv /opt/navsvc
 WORKDIR /app
 # The dependencies first, in a layer of their own: a change of the source reinstalls only navsvc.
@@ -23,6 +27,7 @@ COPY roadgraph roadgraph
 COPY navsvc navsvc
 RUN pip install --no-deps .
 COPY maps maps
+COPY deploy deploy
 
 RUN useradd --create-home --uid 10001 navsvc \
     && mkdir -p /data "$NUMBA_CACHE_DIR" \
@@ -40,5 +45,6 @@ EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
     CMD python3 -c "import os, urllib.request; urllib.request.urlopen('http://127.0.0.1:' + os.environ['NAVSVC_PORT'] + '/v1/healthz', timeout=4)"
 
-# navsvc serve reads NAVSVC_MAP, NAVSVC_HOST and NAVSVC_PORT (and the other NAVSVC_* limits)
+# navsvc serve reads NAVSVC_MAP, NAVSVC_HOST and NAVSVC_PORT (and the other NAVSVC_* limits);
+# NAVSVC_WORKERS=N: N workers behind HAProxy on NAVSVC_PORT, in this one container
 CMD ["navsvc", "serve"]

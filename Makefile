@@ -8,7 +8,7 @@ MAP_DB ?= maps/monaco.db
 HOST ?= 127.0.0.1
 PORT ?= 8000
 
-.PHONY: run test bench map clean browser
+.PHONY: run test bench map clean browser balancer
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,7 +25,7 @@ run: $(MAP_DB)
 	@echo "navsvc: serving $(MAP_DB): open http://$(HOST):$(PORT)/ for the live map (API: /v1, docs: /docs); Ctrl-C stops"
 	$(BIN)/navsvc serve --map $(MAP_DB) --host $(HOST) --port $(PORT)
 
-test: $(BIN)/.installed browser
+test: $(BIN)/.installed browser balancer
 	$(BIN)/python -m pytest
 
 # The map page's browser tests (tests/web) drive Debian's Chromium: installed here with apt-get
@@ -38,6 +38,18 @@ browser:
 	           chromium >/dev/null \
 	         || echo "make test: apt-get could not install Chromium: browser tests will skip"; \
 	       else echo "make test: no Chromium (apt-get install chromium as root): browser tests will skip"; fi; }
+
+# `navsvc serve --workers N` puts HAProxy in front of its workers; its tests (tests/api/
+# test_workers.py) run the real one: installed here with apt-get when it is missing and we are
+# root (as CI is); otherwise those tests skip and say why. `make run` does not need it.
+balancer:
+	@command -v haproxy >/dev/null 2>&1 || test -x /usr/sbin/haproxy \
+	  || { if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	         echo "make test: installing HAProxy for the worker tests (apt-get)"; \
+	         apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	           haproxy >/dev/null \
+	         || echo "make test: apt-get could not install HAProxy: worker tests will skip"; \
+	       else echo "make test: no HAProxy (apt-get install haproxy as root): worker tests will skip"; fi; }
 
 bench: $(MAP_DB)
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'

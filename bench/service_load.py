@@ -9,7 +9,8 @@ this process (asyncio, one WebSocket per session). Sessions replay a simulated d
 - real rate: every 0.1 s each session sends the packets of that 0.1 s (and the GPS fix when
   there is one), each session from its own point of the drive (up to 60 s in) and at its
   own phase of the 0.1 s; latency is from sending a message that holds a GPS fix to
-  receiving the reply with its matched position. ``gyro_accel`` sessions send what the issue
+  receiving the reply with its matched position. A server far behind stops the run at 1.5x
+  its length ("unsent ticks": what was left). ``gyro_accel`` sessions send what the issue
   names, 100 Hz inertial (10 IMU packets a message) and 1 Hz GPS: 101 packets/s a session;
   ``gyro_odometer`` sessions also send a 50 Hz wheel odometer (151 packets/s).
 - GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
@@ -17,15 +18,20 @@ this process (asyncio, one WebSocket per session). Sessions replay a simulated d
 - floor: the real-rate runs against ``bench/ws_floor.py``, the same FastAPI + uvicorn
   WebSocket stack answering without doing any work: what the transport alone costs.
 
-The server runs in one process, so it uses one core; the load generator takes the other (its
-garbage collector is off while it measures latency, as its pauses would be counted as the
-server's). "packets/s per core" is packets per second over the server's CPU use (user + system
-time per second of the run); "CPU us/packet" is that CPU time per packet, and "cores needed"
-what the offered load would take at that cost (above 1 the server cannot keep up).
+Servers (``--workers``, run one after the other): ``0`` is one ``navsvc serve`` process with no
+balancer (as ``make run``); ``N`` >= 1 is ``navsvc serve --workers N --balancer``, HAProxy in
+front of N worker processes, the load going through HAProxy. The server's CPU is that of every
+process of it (workers, HAProxy, supervisor); the generator's CPU is this process's, reported
+beside it, since on this 2-core machine both come out of the same two cores ("cores used" is
+their sum). "others" is the CPU the rest of the machine used meanwhile (from /proc/stat): how
+noisy the run was. The load generator's garbage collector is off while it measures latency,
+as its pauses would be counted as the server's. "packets/s per core" is packets per second
+over the server's CPU use; "CPU us/packet" is that CPU time per packet, and "cores needed"
+what the offered load would take at that cost (above the server's cores it cannot keep up).
 
-    python bench/service_load.py [--map maps/monaco.db] [--seconds 20]
-        [--real-rate 1,100,200] [--sensors gyro_accel,gyro_odometer] [--gps-only 1000]
-        [--throughput 1,4] [--floor 200]
+    python bench/service_load.py [--map maps/monaco.db] [--seconds 20] [--workers 0,1,2]
+        [--real-rate 50,100,200,500] [--sensors gyro_accel] [--gps-only ""]
+        [--throughput 8] [--floor 50,100,200,500]
 """
 
 from __future__ import annotations
@@ -49,10 +55,11 @@ from report import RESULTS, print_table, write_json
 
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from roadgraph import RoadGraph
-from tests.api.server import Server, start_process, start_server
+from tests.api.server import Server, free_port, start_process, start_server
 
 START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
 GOLDEN_RATIO = (1.0 + 5.0 ** 0.5) / 2.0  # k x this, mod 1: evenly spread, never repeating
+DEADLINE_FACTOR = 1.5  # a real-rate run stops sending at 1.5x its length (the server is behind)
 
 
 def rss_mb(pid: int) -> float:
@@ -66,6 +73,67 @@ def cpu_s(pid: int) -> float:
     """User + system CPU seconds the process has used."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def machine_busy_s() -> float:
+    """CPU seconds the whole machine has been busy (every core; /proc/stat)."""
+    values = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return (sum(values[:8]) - values[3] - values[4]) / os.sysconf("SC_CLK_TCK")
+
+
+def server_pids(server: Server) -> list[int]:
+    """The server's processes: it and all its descendants (a supervisor's workers, HAProxy's
+    master and the worker it forks)."""
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+            parents.setdefault(ppid, []).append(int(entry.name))
+    pids, todo = [], [server.process.pid]
+    while todo:
+        pid = todo.pop()
+        pids.append(pid)
+        todo += parents.get(pid, [])
+    return pids
+
+
+def is_balancer(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip() == "haproxy"
+    except OSError:
+        return False
+
+
+class CpuMeter:
+    """CPU seconds of the server's processes, of this process, and of the rest of the
+    machine, from when it is made until :meth:`read`."""
+
+    def __init__(self, server: Server) -> None:
+        self.pids = server_pids(server)
+        self.balancer_pids = [p for p in self.pids if is_balancer(p)]
+        self.start = time.perf_counter()
+        self.server = sum(map(cpu_s, self.pids))
+        self.balancer = sum(map(cpu_s, self.balancer_pids))
+        self.client = time.process_time()
+        self.machine = machine_busy_s()
+
+    def read(self) -> dict[str, float]:
+        """Cores used (CPU seconds per second) by the server, the generator and the rest."""
+        elapsed = time.perf_counter() - self.start
+        server = (sum(map(cpu_s, self.pids)) - self.server) / elapsed
+        balancer = (sum(map(cpu_s, self.balancer_pids)) - self.balancer) / elapsed
+        client = (time.process_time() - self.client) / elapsed
+        others = (machine_busy_s() - self.machine) / elapsed - server - client
+        return {"server_cpu": server, "balancer_cpu": balancer, "client_cpu": client,
+                "others_cpu": max(0.0, others),
+                "server_cpu_s": server * elapsed, "client_cpu_s": client * elapsed}
+
+
+def rss_total_mb(server: Server) -> float:
+    return sum(rss_mb(pid) for pid in server_pids(server))
 
 
 def drive_packets(map_path: Path, seconds: float) -> list[dict[str, Any]]:
@@ -106,8 +174,10 @@ async def close_sessions(server: Server, ids: list[str]) -> None:
             await client.delete(f"/sessions/{sid}")
 
 
-async def _exchange(ws: Any, batch: list[dict]) -> dict[str, Any]:
-    await ws.send(json.dumps(batch))
+async def _exchange(ws: Any, batch: str) -> dict[str, Any]:
+    """Send one batch (JSON text, encoded beforehand: the generator's CPU is the server's
+    too on this machine) and read its reply."""
+    await ws.send(batch)
     reply: dict[str, Any] = json.loads(await ws.recv())
     if reply.get("type") != "result":
         raise RuntimeError(f"server answered {reply}")
@@ -116,7 +186,7 @@ async def _exchange(ws: Any, batch: list[dict]) -> dict[str, Any]:
 
 async def throughput(server: Server, packets: list[dict], sessions: int) -> dict[str, Any]:
     ids = await open_sessions(server, sessions, "gyro_odometer")
-    batches = [packets[i:i + 100] for i in range(0, len(packets), 100)]
+    batches = [json.dumps(packets[i:i + 100]) for i in range(0, len(packets), 100)]
     accepted = 0
 
     async def one(sid: str) -> None:
@@ -127,43 +197,52 @@ async def throughput(server: Server, packets: list[dict], sessions: int) -> dict
                 reply = await _exchange(ws, batch)  # not inside `+=`: other sessions add too
                 accepted += reply["accepted"]
 
-    start, cpu = time.perf_counter(), cpu_s(server.process.pid)
+    start, meter = time.perf_counter(), CpuMeter(server)
     await asyncio.gather(*(one(s) for s in ids))
     elapsed = time.perf_counter() - start
-    busy = (cpu_s(server.process.pid) - cpu) / elapsed
+    cpu = meter.read()
     await close_sessions(server, ids)
     return {"scenario": "throughput", "sessions": sessions, "packets": accepted,
-            "seconds": elapsed, "packets_per_s": accepted / elapsed, "server_cpu": busy,
-            "packets_per_cpu_s": accepted / elapsed / max(busy, 1e-9)}
+            "seconds": elapsed, "packets_per_s": accepted / elapsed, **cpu,
+            "packets_per_cpu_s": accepted / elapsed / max(cpu["server_cpu"], 1e-9),
+            "load_average": os.getloadavg()[0]}
 
 
 async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seconds: float,
                     sensors: str) -> dict[str, Any]:
-    before = rss_mb(server.process.pid)
+    before = rss_total_mb(server)
     ids = await open_sessions(server, sessions, sensors)
     latencies: list[float] = []
     late = 0
+    unsent = 0  # ticks not sent by the deadline (a server far behind stops the run)
     sent = 0
     offered = sum(len(ticks[(k * 37) % START_SPREAD_TICKS + i])
                   for k in range(sessions) for i in range(int(seconds * 10))) / seconds
     sockets = [await websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
                                         max_size=None) for sid in ids]
+    encoded = [[json.dumps(batch) if batch else "" for batch in session_ticks]
+               for session_ticks in [ticks[(k * 37) % START_SPREAD_TICKS:
+                                           (k * 37) % START_SPREAD_TICKS + int(seconds * 10)]
+                                     for k in range(sessions)]]
+    has_fix = [[any(p["kind"] == "gps" for p in batch) for batch in
+                ticks[(k * 37) % START_SPREAD_TICKS:(k * 37) % START_SPREAD_TICKS
+                      + int(seconds * 10)]] for k in range(sessions)]
     start = time.perf_counter() + 0.5
-    cpu = cpu_s(server.process.pid)
-    client_cpu = time.process_time()
+    deadline = start + DEADLINE_FACTOR * seconds
+    meter = CpuMeter(server)
     gc.collect()
     gc.disable()  # this process's full collections (100+ ms with 1,000 sockets) are not the
     # server's latency: keep them out of the measurement
 
     async def one(k: int, ws: Any) -> None:
-        nonlocal late, sent
+        nonlocal late, sent, unsent
         # each session sends at its own phase of the 0.1 s tick, as independent vehicles do
         # (k / sessions put sessions / 10 of them on the same instant, in bursts)
         offset = 0.1 * ((k * GOLDEN_RATIO) % 1.0)
         # and start each session at its own point of the drive: in step, every session would
         # reach the same junction (and the matcher's costliest moments) in the same second
-        first = (k * 37) % START_SPREAD_TICKS
-        for i, batch in enumerate(ticks[first:first + int(seconds * 10)]):
+        # (``encoded`` and ``has_fix`` hold each session's ticks from there)
+        for i, batch in enumerate(encoded[k]):
             if not batch:
                 continue
             due = start + i * 0.1 + offset
@@ -172,30 +251,33 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
                 await asyncio.sleep(wait)
             elif wait < -0.1:
                 late += 1
+                if time.perf_counter() > deadline:
+                    unsent += sum(1 for b in encoded[k][i:] if b)
+                    break
             t0 = time.perf_counter()
             reply = await _exchange(ws, batch)
-            sent += len(batch)
-            if reply["positions"] and any(p["kind"] == "gps" for p in batch):
+            sent += reply["accepted"] + len(reply["rejected"])
+            if reply["positions"] and has_fix[k][i]:
                 latencies.append(time.perf_counter() - t0)
 
     await asyncio.gather(*(one(k, ws) for k, ws in enumerate(sockets)))
     elapsed = time.perf_counter() - start  # longer than planned when the server fell behind
+    cpu = meter.read()
     gc.enable()
-    client_busy = (time.process_time() - client_cpu) / elapsed
-    after = rss_mb(server.process.pid)
-    busy = (cpu_s(server.process.pid) - cpu) / elapsed
+    after = rss_total_mb(server)
     for ws in sockets:
         await ws.close()
     await close_sessions(server, ids)
     lat_ms = sorted(1e3 * x for x in latencies)
-    cpu_per_packet = busy * elapsed / sent
+    cpu_per_packet = cpu["server_cpu_s"] / sent
     return {"scenario": f"real rate ({sensors})", "sessions": sessions, "packets": sent,
             "seconds": elapsed, "packets_per_s": sent / elapsed, "offered_per_s": offered,
             "server_cpu_us_per_packet": 1e6 * cpu_per_packet,
             "cores_needed": offered * cpu_per_packet,
             "latency_p50_ms": statistics.median(lat_ms),
             "latency_p99_ms": lat_ms[min(len(lat_ms) - 1, int(0.99 * len(lat_ms)))],
-            "late_ticks": late, "server_cpu": busy, "client_cpu": client_busy,
+            "late_ticks": late, "unsent_ticks": unsent, **cpu,
+            "load_average": os.getloadavg()[0],
             "rss_before_mb": before, "rss_after_mb": after,
             "mb_per_session": (after - before) / sessions}
 
@@ -206,60 +288,139 @@ def start_floor(log: Path) -> Server:
     return start_process(lambda port: [sys.executable, floor, str(port)], log)
 
 
+def start_workers(db: Path, log: Path, workers: int, env: dict[str, str]) -> Server:
+    """``navsvc serve --workers N --balancer`` on free loopback ports; returns once every
+    worker is up behind HAProxy."""
+    base = free_port()
+    server = start_process(lambda port: [
+        sys.executable, "-m", "navsvc", "serve", "--map", str(db), "--host", "127.0.0.1",
+        "--port", str(port), "--workers", str(workers), "--balancer",
+        "--worker-port-base", str(base)], log, env)
+    deadline = time.monotonic() + 120.0
+    while time.monotonic() < deadline:
+        text = httpx.get(server.url + "/v1/metrics", timeout=10).text
+        if text.count("navsvc_worker_up{") == workers and "} 0.0" not in "".join(
+                line for line in text.splitlines() if line.startswith("navsvc_worker_up")):
+            return server
+        time.sleep(0.5)
+    server.stop()
+    raise RuntimeError(f"workers did not come up: {log.read_text()[-2000:]}")
+
+
+def server_name(workers: int) -> str:
+    return "1 process" if workers == 0 else f"{workers} worker{'s' * (workers > 1)} + HAProxy"
+
+
+def counts(text: str) -> list[int]:
+    return [int(n) for n in text.split(",") if n.strip()]
+
+
+def run_server(db: Path, tmp: Path, workers: int, drive: list[dict], args: argparse.Namespace
+               ) -> list[dict[str, Any]]:
+    """Every scenario against one server (``workers`` 0: a single process, no balancer)."""
+    env = {"NAVSVC_WS_QUEUE": "1024"}
+    log = tmp / f"server-{workers}.log"
+    server = start_server(db, log, env=env) if workers == 0 else \
+        start_workers(db, log, workers, env)
+    rows: list[dict[str, Any]] = []
+    try:
+        for n in counts(args.throughput):
+            rows.append(asyncio.run(throughput(server, sent_by(drive, "gyro_odometer"), n)))
+            print({**rows[-1], "server": server_name(workers)}, flush=True)
+        runs = [(sensors, n) for sensors in filter(None, args.sensors.split(","))
+                for n in counts(args.real_rate)]
+        runs += [("gps_only", n) for n in counts(args.gps_only)]
+        for sensors, n in runs:
+            ticks = tick_batches(sent_by(drive, sensors))
+            rows.append(asyncio.run(real_rate(server, ticks, n, args.seconds, sensors)))
+            print({**rows[-1], "server": server_name(workers)}, flush=True)
+    finally:
+        server.stop()
+        for suffix in ("", "-wal", "-shm"):  # the next server starts on an empty log
+            for old in tmp.glob(f"*.trips.db*{suffix}"):
+                old.unlink(missing_ok=True)
+    return [{**r, "server": server_name(workers), "workers": workers} for r in rows]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--map", type=Path, default=RESULTS.parent.parent / "maps" / "monaco.db")
-    parser.add_argument("--seconds", type=float, default=20.0, help="real-rate run length")
-    parser.add_argument("--real-rate", default="1,100,200", help="session counts")
-    parser.add_argument("--sensors", default="gyro_accel,gyro_odometer",
-                        help="sensor configurations of the real-rate sessions")
-    parser.add_argument("--gps-only", default="1000", help="session counts")
-    parser.add_argument("--throughput", default="1,4", help="session counts")
-    parser.add_argument("--floor", default="200",
+    parser.add_argument("--seconds", type=float, default=15.0, help="real-rate run length")
+    parser.add_argument("--workers", default="0,1,2",
+                        help="servers, one after the other: 0 = one process, no balancer; "
+                             "N = N workers behind HAProxy (default 0,1,2)")
+    parser.add_argument("--real-rate", default="50,100,200,500", help="session counts")
+    parser.add_argument("--sensors", default="gyro_accel",
+                        help="sensor configurations of the real-rate sessions (gyro_accel, "
+                             "gyro_odometer, ...)")
+    parser.add_argument("--gps-only", default="", help="session counts (e.g. 1000)")
+    parser.add_argument("--throughput", default="8",
+                        help="session counts of the saturation runs")
+    parser.add_argument("--floor", default="50,100,200,500",
                         help="session counts of real-rate runs against the bare WebSocket "
                              "stack (bench/ws_floor.py)")
     args = parser.parse_args()
-    drive = drive_packets(args.map, args.seconds + START_SPREAD_TICKS / 10 + 5.0)
-    packets = sent_by(drive, "gyro_odometer")
+    drive = drive_packets(args.map, max(120.0, args.seconds + START_SPREAD_TICKS / 10 + 5.0))
+    rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / args.map.name
         shutil.copy(args.map, db)
-        server = start_server(db, Path(tmp) / "server.log",
-                              env={"NAVSVC_WS_QUEUE": "1024"})
-        rows: list[dict[str, Any]] = []
-        try:
-            for n in map(int, filter(None, args.throughput.split(","))):
-                rows.append(asyncio.run(throughput(server, packets, n)))
-                print(rows[-1])
-            runs = [(sensors, int(n)) for sensors in filter(None, args.sensors.split(","))
-                    for n in filter(None, args.real_rate.split(","))]
-            runs += [("gps_only", int(n)) for n in filter(None, args.gps_only.split(","))]
-            for sensors, n in runs:
-                ticks = tick_batches(sent_by(drive, sensors))
-                rows.append(asyncio.run(real_rate(server, ticks, n, args.seconds, sensors)))
-                print(rows[-1])
-        finally:
-            server.stop()
+        for workers in counts(args.workers):
+            rows += run_server(db, Path(tmp), workers, drive, args)
         floor = start_floor(Path(tmp) / "floor.log")
         try:
             for sensors in filter(None, args.sensors.split(",")):
-                for n in map(int, filter(None, args.floor.split(","))):
+                for n in counts(args.floor):
                     row = asyncio.run(real_rate(floor, tick_batches(sent_by(drive, sensors)), n,
                                                 args.seconds, sensors))
-                    rows.append({**row, "scenario": f"floor: bare stack ({sensors})"})
-                    print(rows[-1])
+                    rows.append({**row, "scenario": f"floor: bare stack ({sensors})",
+                                 "server": "floor (1 process)", "workers": 0})
+                    print(rows[-1], flush=True)
         finally:
             floor.stop()
-    print_table("navsvc service under load (server: 1 process; loopback WebSocket)",
-                ["scenario", "sessions", "offered/s", "packets/s", "server CPU",
-                 "packets/s per core", "CPU us/packet", "cores needed", "p50 ms", "p99 ms",
-                 "late ticks", "MB/session"],
-                [[r["scenario"], r["sessions"], r.get("offered_per_s", ""), r["packets_per_s"],
-                  r["server_cpu"], r["packets_per_s"] / max(r["server_cpu"], 1e-9),
-                  r.get("server_cpu_us_per_packet", ""), r.get("cores_needed", ""),
-                  r.get("latency_p50_ms", ""), r.get("latency_p99_ms", ""),
-                  r.get("late_ticks", ""), r.get("mb_per_session", "")] for r in rows])
-    write_json("service_load", {"rows": rows})
+    print_tables(rows)
+    write_json("service_load", {"rows": rows, "scaling": scaling(rows),
+                                "argv": sys.argv[1:]})
+
+
+def scaling(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Saturation packets/s of N workers over 1 worker (both behind HAProxy), as measured
+    and per core the servers used."""
+    sat = {r["workers"]: r for r in rows if r["scenario"] == "throughput"}
+    if 1 not in sat:
+        return {}
+    one = sat[1]
+    return {str(w): {"packets_per_s_ratio": r["packets_per_s"] / one["packets_per_s"],
+                     "packets_per_server_cpu_s_ratio":
+                         r["packets_per_cpu_s"] / one["packets_per_cpu_s"]}
+            for w, r in sat.items() if w >= 1}
+
+
+def print_tables(rows: list[dict[str, Any]]) -> None:
+    sat = [r for r in rows if r["scenario"] == "throughput"]
+    print_table("saturation: sessions send as fast as the server answers (gyro_odometer, "
+                "batches of 100); cores = CPU seconds per second",
+                ["server", "sessions", "packets/s", "server cores", "of which HAProxy",
+                 "generator cores", "others' cores", "packets/s per server core", "load avg"],
+                [[r["server"], r["sessions"], r["packets_per_s"], r["server_cpu"],
+                  r["balancer_cpu"], r["client_cpu"], r["others_cpu"], r["packets_per_cpu_s"],
+                  r["load_average"]] for r in sat])
+    for w, ratio in scaling(rows).items():
+        print(f"  {w} worker(s) / 1 worker: packets/s x{ratio['packets_per_s_ratio']:.2f}, "
+              f"per server core x{ratio['packets_per_server_cpu_s_ratio']:.2f}")
+    real = [r for r in rows if r["scenario"] != "throughput"]
+    print_table("real rate: every 0.1 s each session sends that 0.1 s of packets; latency "
+                "from sending a message with a GPS fix to its position",
+                ["server", "scenario", "sessions", "offered/s", "packets/s", "server cores",
+                 "of which HAProxy", "generator cores", "others' cores", "CPU us/packet",
+                 "cores needed",
+                 "p50 ms", "p99 ms", "late ticks", "unsent ticks", "MB/session"],
+                [[r["server"], r["scenario"], r["sessions"], r["offered_per_s"],
+                  r["packets_per_s"], r["server_cpu"], r["balancer_cpu"], r["client_cpu"],
+                  r["others_cpu"],
+                  r["server_cpu_us_per_packet"], r["cores_needed"], r["latency_p50_ms"],
+                  r["latency_p99_ms"], r["late_ticks"], r["unsent_ticks"], r["mb_per_session"]]
+                 for r in real])
 
 
 if __name__ == "__main__":

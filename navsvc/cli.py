@@ -157,6 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--profiles", type=Path, metavar="DIR",
                     help="a folder of tuned profiles (`navsvc tune`); a session names one by "
                     "its file stem (default: $NAVSVC_PROFILES)")
+    _add_worker_options(sv)
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
                         description="Create a session on a running `navsvc serve`, stream the "
@@ -206,6 +207,33 @@ def build_parser() -> argparse.ArgumentParser:
     vw.epilog = MODES_HELP
     _add_verbose_everywhere(sub)
     return parser
+
+
+def _add_worker_options(sv: argparse.ArgumentParser) -> None:
+    """`serve`'s options for several workers behind HAProxy (navsvc.cluster)."""
+    sv.add_argument("--workers", type=_count_arg, default=os.environ.get("NAVSVC_WORKERS", "1"),
+                    metavar="N", help="worker processes, each with its own sessions and trip "
+                    "log (<triplog>.w<k>), behind HAProxy on --host:--port, which routes on the "
+                    "session id; a worker that dies is started again and restores its "
+                    "sessions (default: $NAVSVC_WORKERS or 1: one process, no balancer)")
+    sv.add_argument("--balancer", action="store_true",
+                    help="HAProxy in front even of one worker")
+    sv.add_argument("--worker-port-base", type=int, metavar="PORT",
+                    help="worker k listens on 127.0.0.1:PORT+k (default: --port + 1)")
+    sv.add_argument("--worker-id", type=int, metavar="K",
+                    help="serve as worker K of a fleet behind a balancer: session ids "
+                    "w<K>-..., trip log <triplog>.w<K> (default: $NAVSVC_WORKER_ID; "
+                    "--workers N sets it for its workers)")
+
+
+def _count_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 1 <= value <= 64:
+        raise argparse.ArgumentTypeError(f"{text}: must be from 1 to 64")
+    return value
 
 
 MAX_BATCH = 1000  # the service's default NAVSVC_MAX_BATCH_PACKETS
@@ -769,15 +797,37 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             raise ConfigError("no map: pass --map DB or set NAVSVC_MAP")
         warm_up(RoadGraph.open(map_path))
         return 0
+    if args.workers > 1 or args.balancer:
+        return _serve_workers(args)
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
-                                 profiles_path=args.profiles)
+                                 profiles_path=args.profiles, worker_id=args.worker_id)
     log.info("profiles: %s", ", ".join(settings.profiles()) or "none")  # a bad one fails here
     app = create_app(settings)
+    if settings.worker_id is not None:  # the balancer's health checks, twice a second
+        logging.getLogger("uvicorn.access").addFilter(
+            lambda record: "/v1/healthz" not in record.getMessage())
     # no per-message compression: replies are small, and deflate cost more CPU than it saved
     uvicorn.run(app, host=args.host, port=args.port, ws_ping_interval=20.0,
                 ws_ping_timeout=20.0, ws_per_message_deflate=False,
                 log_level="debug" if args.verbose else "info")
     return 0
+
+
+def _serve_workers(args: argparse.Namespace) -> int:
+    """`serve --workers N`: HAProxy and N workers under a supervisor (navsvc.cluster)."""
+    from navsvc.api import Settings
+    from navsvc.cluster import ClusterPlan, serve_cluster
+
+    if args.worker_id is not None:
+        raise ConfigError("--worker-id is for one worker; --workers N numbers its own")
+    settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
+                                 profiles_path=args.profiles)  # a bad setting fails here
+    plan = ClusterPlan.local(args.host, args.port, args.workers, settings.triplog,
+                             args.worker_port_base)
+    worker_args = ["--map", str(settings.map_path)]
+    if args.profiles is not None:
+        worker_args += ["--profiles", str(args.profiles)]
+    return serve_cluster(plan, worker_args, verbose=args.verbose)
 
 
 def _cmd_view(args: argparse.Namespace) -> int:

@@ -1,14 +1,32 @@
 """The service's Prometheus metrics, defined in one place (served as text at ``/v1/metrics``).
 
-Each app has its own registry, so that tests can run several apps in one process.
+Each app has its own registry, so that tests can run several apps in one process. What a
+fleet operator watches, per worker: packets accepted and rejected by reason, open sessions,
+ingest latency (``navsvc_batch_seconds``), trip-log append latency and size, checkpoint lag
+(packets a restart would replay, and for how long), and event-loop lag. Behind the balancer
+:func:`merge_expositions` joins every worker's scrape into one, each series labelled with
+its ``worker``.
 """
 
 from __future__ import annotations
 
+import asyncio
+import functools
+import time
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
 from prometheus_client import CONTENT_TYPE_LATEST as CONTENT_TYPE
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
+from prometheus_client.metrics_core import Metric
+from prometheus_client.parser import text_string_to_metric_families
 
-__all__ = ["CONTENT_TYPE", "Metrics"]
+__all__ = ["CONTENT_TYPE", "Metrics", "merge_expositions", "watch_event_loop"]
+
+LOOP_LAG_PERIOD_S = 0.25  # the event-loop lag probe sleeps this long, and measures the excess
+_FAST_BUCKETS = (0.0001, 0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 1.0)
+F = TypeVar("F", bound=Callable[..., Any])
 
 
 class Metrics:
@@ -42,5 +60,92 @@ class Metrics:
             "navsvc_match_request_seconds", "Time to match one trace (POST /match)",
             buckets=(0.01, 0.05, 0.1, 0.5, 1.0, 5.0, 30.0), registry=self.registry)
 
+        self.triplog_append_seconds = Histogram(
+            "navsvc_triplog_append_seconds",
+            "Time to write one batch's accepted packets to the trip log (committed)",
+            buckets=_FAST_BUCKETS, registry=self.registry)
+        self.triplog_bytes = Gauge(
+            "navsvc_triplog_bytes", "Size of the trip log's files (database, write-ahead log)",
+            ["file"], registry=self.registry)
+        self.checkpoint_lag_packets = Gauge(
+            "navsvc_checkpoint_lag_packets",
+            "Packets logged since their session's last checkpoint, over all sessions: what a "
+            "restart would replay", registry=self.registry)
+        self.checkpoint_lag_seconds = Gauge(
+            "navsvc_checkpoint_lag_seconds",
+            "Longest time since the last checkpoint of a session with packets after it",
+            registry=self.registry)
+        self.event_loop_lag = Histogram(
+            "navsvc_event_loop_lag_seconds",
+            f"How late the event loop woke a {LOOP_LAG_PERIOD_S} s sleep (time it was busy "
+            "and every request waited)", buckets=_FAST_BUCKETS, registry=self.registry)
+
+    def watch_triplog(self, path: Path) -> None:
+        """Report the trip log's file sizes at every scrape."""
+        for name, file in (("database", path), ("wal", path.with_name(path.name + "-wal"))):
+            self.triplog_bytes.labels(name).set_function(functools.partial(_size, file))
+
+    def watch_checkpoints(self, lag: Callable[[], tuple[int, float]]) -> None:
+        """Report ``lag()`` (packets, seconds; SessionStore.checkpoint_lag) at every scrape."""
+        self.checkpoint_lag_packets.set_function(lambda: lag()[0])
+        self.checkpoint_lag_seconds.set_function(lambda: lag()[1])
+
+    def timed_append(self, append: F) -> F:
+        """``append`` (TripLog.append) timed into ``navsvc_triplog_append_seconds``."""
+        histogram = self.triplog_append_seconds
+
+        @functools.wraps(append)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            start = time.perf_counter()
+            try:
+                return append(*args, **kwargs)
+            finally:
+                histogram.observe(time.perf_counter() - start)
+        return timed  # type: ignore[return-value]
+
     def text(self) -> bytes:
         return generate_latest(self.registry)
+
+
+def _size(path: Path) -> float:
+    try:
+        return float(path.stat().st_size)
+    except FileNotFoundError:
+        return 0.0
+
+
+async def watch_event_loop(histogram: Histogram, period_s: float = LOOP_LAG_PERIOD_S) -> None:
+    """Sleep ``period_s`` again and again; observe how much later than asked each wake-up was."""
+    while True:
+        start = time.perf_counter()
+        await asyncio.sleep(period_s)
+        histogram.observe(max(0.0, time.perf_counter() - start - period_s))
+
+
+class _Families:
+    """A collector yielding fixed metric families (for :func:`merge_expositions`)."""
+
+    def __init__(self, families: list[Metric]) -> None:
+        self._families = families
+
+    def collect(self) -> Iterator[Metric]:
+        return iter(self._families)
+
+
+def merge_expositions(scrapes: Mapping[str, str], up: Mapping[str, bool]) -> bytes:
+    """One exposition of several workers' (text by worker id), every sample labelled
+    ``worker``, plus ``navsvc_worker_up`` (1 or 0) for each worker of ``up``."""
+    merged: dict[str, Metric] = {}
+    for worker, text in scrapes.items():
+        for family in text_string_to_metric_families(text):
+            into = merged.setdefault(family.name, Metric(family.name, family.documentation,
+                                                         family.type, family.unit))
+            for sample in family.samples:
+                into.samples.append(sample._replace(labels={**sample.labels,
+                                                            "worker": worker}))
+    workers_up = Metric("navsvc_worker_up", "1 when the worker answered this scrape", "gauge")
+    for worker, answered in up.items():
+        workers_up.add_sample("navsvc_worker_up", {"worker": worker}, 1.0 if answered else 0.0)
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_Families([*merged.values(), workers_up]))
+    return generate_latest(registry)

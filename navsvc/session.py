@@ -458,8 +458,9 @@ class SessionStore:
 
     def __init__(self, graph: RoadGraph, triplog: TripLog, *, idle_timeout_s: float = 3600.0,
                  max_sessions_per_owner: int = 10_000,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, id_prefix: str = "") -> None:
         self.graph = graph
+        self.id_prefix = id_prefix  # a worker's: the balancer routes on it (navsvc.cluster)
         self.triplog = triplog
         self.idle_timeout_s = idle_timeout_s
         self.max_sessions_per_owner = max_sessions_per_owner
@@ -485,7 +486,8 @@ class SessionStore:
             raise LimitExceeded(f"this API key already has {owned} sessions; the limit is "
                                 f"{self.max_sessions_per_owner}")
         now = self._clock()
-        session = LiveSession(id=secrets.token_hex(8), owner=owner, vehicle_id=vehicle_id,
+        session = LiveSession(id=self.id_prefix + secrets.token_hex(8), owner=owner,
+                              vehicle_id=vehicle_id,
                               options=options, created_unix=time.time(),
                               vehicle=VehicleSession(config, self.graph), last_seen=now,
                               checkpoint_clock=now)
@@ -691,3 +693,14 @@ class SessionStore:
     def _close(self, session_id: str) -> None:
         self.triplog.close_session(session_id)
         del self._sessions[session_id]
+
+    def checkpoint_lag(self) -> tuple[int, float]:
+        """Packets logged since their session's last checkpoint, over all live sessions (what
+        a restart would replay), and the longest time in seconds since a checkpoint of a
+        session that has such packets."""
+        now, packets, seconds = self._clock(), 0, 0.0
+        for s in self._sessions.values():
+            if (behind := s.packets + s.rejected - s.checkpoint_packets) > 0:
+                packets += behind
+                seconds = max(seconds, now - s.checkpoint_clock)
+        return packets, seconds

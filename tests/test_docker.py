@@ -50,5 +50,23 @@ def test_the_map_id_is_the_maps_name_and_the_health_check_asks_the_server() -> N
 def test_compose_builds_the_image_once() -> None:
     text = (ROOT / "docker-compose.yml").read_text()
     assert text.count("build: .") == 1
-    assert text.count("image: navsvc:local") == 2
+    assert text.count("image: navsvc:local") == 3  # import, the workers, the balancer
     assert "NAVSVC_MAP: /data/${MAP_NAME:-monaco}.db" in text
+
+
+def test_compose_puts_the_balancer_in_front_of_workers_with_their_own_ids() -> None:
+    """Each worker service has its id (the prefix of its session ids), and the balancer
+    serves the generated config (tests/api/test_cluster_config.py checks it is current)."""
+    import yaml  # PyYAML: dask of the test extras requires it
+
+    services = yaml.safe_load((ROOT / "docker-compose.yml").read_text())["services"]
+    workers = {name: s for name, s in services.items() if name.startswith("worker")}
+    assert {s["environment"]["NAVSVC_WORKER_ID"] for s in workers.values()} == \
+        {name.removeprefix("worker") for name in workers}
+    peers = next(iter(workers.values()))["environment"]["NAVSVC_PEERS"].split(",")
+    assert peers == [f"http://{name}:8000" for name in sorted(workers)]
+    balancer = services["balancer"]
+    assert balancer["command"] == ["haproxy", "-db", "-f", "/app/deploy/haproxy-compose.cfg"]
+    assert "ports" in balancer and all("ports" not in s for s in workers.values())
+    assert "COPY deploy deploy" in (ROOT / "Dockerfile").read_text()
+

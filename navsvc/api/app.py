@@ -41,7 +41,7 @@ from navsvc.errors import (
     SessionNotFound,
     TraceError,
 )
-from navsvc.metrics import Metrics
+from navsvc.metrics import Metrics, watch_event_loop
 from navsvc.session import SessionStore
 from navsvc.triplog import TripLog
 from navsvc.web import STATIC_DIR
@@ -65,8 +65,12 @@ def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> Fast
     graph = RoadGraph.open(settings.map_path)
     triplog = TripLog(settings.triplog, sync=settings.triplog_sync)
     store = SessionStore(graph, triplog, idle_timeout_s=settings.session_idle_s,
-                         max_sessions_per_owner=settings.max_sessions_per_key)
+                         max_sessions_per_owner=settings.max_sessions_per_key,
+                         id_prefix=settings.session_prefix)
     metrics = Metrics()
+    triplog.append = metrics.timed_append(triplog.append)  # type: ignore[method-assign]
+    metrics.watch_triplog(settings.triplog)
+    metrics.watch_checkpoints(store.checkpoint_lag)
     state = AppState(settings=settings, graph=graph, store=store, metrics=metrics,
                      viewers=ViewerHub(settings.view_history_batches,
                                        settings.ws_queue_messages, metrics.viewer_dropped.inc),
@@ -84,11 +88,13 @@ def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> Fast
         # session's objects (30-50 ms with 1,000 sessions), which made the p99 latency.
         gc.set_threshold(20_000, 50, 100)
         state.metrics.sessions.set(reopened)
-        log.info("serving map %r (%s); trip log %s; %d open sessions to restore", graph.map_id,
-                 settings.map_path, settings.triplog, reopened)
+        log.info("serving map %r (%s); trip log %s; %d open sessions to restore%s",
+                 graph.map_id, settings.map_path, settings.triplog, reopened,
+                 "" if settings.worker_id is None else f" (worker {settings.worker_id})")
         upkeep = [asyncio.create_task(_restore_sessions(store)),
                   asyncio.create_task(_expire_idle(state)),
-                  asyncio.create_task(_drop_closed_logs(triplog))]
+                  asyncio.create_task(_drop_closed_logs(triplog)),
+                  asyncio.create_task(watch_event_loop(metrics.event_loop_lag))]
         yield
         for task in upkeep:
             task.cancel()

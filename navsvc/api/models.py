@@ -63,6 +63,9 @@ class SessionInfo(BaseModel):
 
 class SessionList(BaseModel):
     sessions: list[SessionInfo]
+    workers_unreachable: list[int] = Field(
+        default_factory=list, description="behind the balancer: workers that did not answer, "
+        "whose sessions are missing from the list (one restarting after a crash, say)")
 
 
 class RejectedPacket(BaseModel):

@@ -14,6 +14,9 @@
 | ``NAVSVC_WS_QUEUE`` | 64 | replies queued per WebSocket before the oldest is dropped |
 | ``NAVSVC_VIEW_HISTORY`` | 7200 | batches with fixes or positions kept per watched session |
 | ``NAVSVC_PROFILES`` | (none) | folder of tuned profiles a session may name (``navsvc tune``) |
+| ``NAVSVC_WORKERS`` | 1 | ``navsvc serve``: worker processes behind HAProxy (navsvc.cluster) |
+| ``NAVSVC_WORKER_ID`` | (none) | worker k: session ids ``w<k>-...``, trip log ``<triplog>.w<k>`` |
+| ``NAVSVC_PEERS`` | (none) | all workers' URLs in order: fleet-wide ``/v1/sessions``, metrics |
 """
 
 from __future__ import annotations
@@ -44,6 +47,8 @@ class Settings:
     ws_queue_messages: int = 64
     view_history_batches: int = 7200  # per session a map viewer watches (navsvc.web.feed)
     profiles_path: Path | None = None  # a folder of tuned profiles (`serve --profiles`)
+    worker_id: int | None = None  # one worker of several (navsvc.cluster); None: alone
+    peers: tuple[str, ...] = ()  # every worker's base URL, in worker order (self included)
 
     def __post_init__(self) -> None:
         for name in ("max_body_bytes", "max_batch_packets", "max_trace_points",
@@ -53,6 +58,12 @@ class Settings:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.triplog_sync not in ("normal", "full"):
             raise ConfigError(f"triplog_sync must be normal or full, got {self.triplog_sync!r}")
+        if self.worker_id is not None and self.worker_id < 0:
+            raise ConfigError(f"worker_id must be >= 0, got {self.worker_id}")
+        if self.peers and (self.worker_id is None or self.worker_id >= len(self.peers)):
+            raise ConfigError(f"NAVSVC_PEERS lists {len(self.peers)} workers, so this one "
+                              f"needs a worker id below {len(self.peers)} (NAVSVC_WORKER_ID, "
+                              f"--worker-id), got {self.worker_id}")
 
     def profiles(self) -> dict[str, dict[str, Any]]:
         """The profiles of ``profiles_path`` by name (read once; none without a folder)."""
@@ -60,7 +71,15 @@ class Settings:
 
     @property
     def triplog(self) -> Path:
-        return self.triplog_path or triplog_path_for(self.map_path)
+        """The trip log; a worker's is its own, ``<triplog>.w<k>``."""
+        path = self.triplog_path or triplog_path_for(self.map_path)
+        return path if self.worker_id is None else path.with_name(
+            f"{path.name}.w{self.worker_id}")
+
+    @property
+    def session_prefix(self) -> str:
+        """What this server's session ids begin with (the balancer routes on it)."""
+        return "" if self.worker_id is None else f"w{self.worker_id}-"
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] = os.environ, **overrides: Any) -> Settings:
@@ -89,7 +108,7 @@ def _profiles(folder: Path) -> dict[str, dict[str, Any]]:
 
 
 _INTS = {"max_body_bytes", "max_batch_packets", "max_trace_points", "max_sessions_per_key",
-         "ws_queue_messages", "view_history_batches"}
+         "ws_queue_messages", "view_history_batches", "worker_id"}
 
 
 def _convert(field: str, text: str, env_name: str) -> Any:
@@ -98,6 +117,8 @@ def _convert(field: str, text: str, env_name: str) -> Any:
             return Path(text)
         if field == "api_keys":
             return frozenset(k.strip() for k in text.split(",") if k.strip())
+        if field == "peers":
+            return tuple(u.strip().rstrip("/") for u in text.split(",") if u.strip())
         if field in _INTS:
             return int(text)
         if field == "session_idle_s":

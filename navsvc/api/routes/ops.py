@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Query, Response
 
 from navsvc import __version__
 from navsvc.api.deps import StateDep
-from navsvc.metrics import CONTENT_TYPE
+from navsvc.api.fleet import Scope, ask_workers, other_workers
+from navsvc.metrics import CONTENT_TYPE, merge_expositions
 
 router = APIRouter(tags=["operations"])
 
@@ -35,7 +36,21 @@ def healthz(state: StateDep) -> dict[str, Any]:
 @router.get("/metrics", response_class=Response,
             responses={200: {"content": {"text/plain": {}},
                              "description": "Prometheus text exposition format"}})
-def metrics(state: StateDep) -> Response:
-    """Packets accepted and rejected by reason, sessions, batch and match latency."""
+async def metrics(state: StateDep, scope: Scope = Query(  # noqa: B008
+        "fleet", description="fleet: every worker's metrics, each series labelled with its "
+        "worker (behind the balancer); worker: this worker's alone")) -> Response:
+    """Per worker: packets accepted and rejected by reason, sessions open, ingest latency
+    (navsvc_batch_seconds), trip-log append latency and size, checkpoint lag, event-loop lag;
+    match latency. Behind the balancer, every worker's (navsvc_worker_up says which answered)."""
     state.metrics.sessions.set(len(state.store))
-    return Response(state.metrics.text(), media_type=CONTENT_TYPE)
+    own = state.metrics.text()
+    workers = other_workers(state.settings, scope)
+    if state.settings.worker_id is None or scope == "worker":
+        return Response(own, media_type=CONTENT_TYPE)
+    answers = await ask_workers(workers, "/v1/metrics", {})
+    scrapes = {str(state.settings.worker_id): own.decode()}
+    scrapes.update({str(a.worker_id): a.body.decode() for a in answers if a.body is not None})
+    up = {str(k): str(k) in scrapes for k in range(len(state.settings.peers))}
+    up[str(state.settings.worker_id)] = True
+    return Response(merge_expositions(dict(sorted(scrapes.items())), up),
+                    media_type=CONTENT_TYPE)

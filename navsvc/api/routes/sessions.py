@@ -6,9 +6,10 @@ import sqlite3
 import time
 from typing import Any
 
-from fastapi import APIRouter, Body, HTTPException, Query, Response
+from fastapi import APIRouter, Body, HTTPException, Query, Request, Response
 
-from navsvc.api.deps import AppState, OwnerDep, StateDep
+from navsvc.api.deps import API_KEY_HEADER, AppState, OwnerDep, StateDep
+from navsvc.api.fleet import Scope, ask_workers, other_workers
 from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
 from navsvc.errors import ConfigError
 from navsvc.session import MAX_CLIENT_SEQ, LiveSession
@@ -73,9 +74,21 @@ async def create_session(body: SessionCreate, state: StateDep, owner: OwnerDep) 
 
 
 @router.get("", response_model=SessionList)
-async def list_sessions(state: StateDep, owner: OwnerDep) -> SessionList:
-    """The caller's open sessions."""
-    return SessionList(sessions=[session_info(state, s) for s in state.store.sessions(owner)])
+async def list_sessions(request: Request, state: StateDep, owner: OwnerDep,
+                        scope: Scope = Query(  # noqa: B008
+                            "fleet", description="fleet: on every worker (behind the "
+                            "balancer); worker: on the worker that answers")) -> SessionList:
+    """The caller's open sessions (on every worker)."""
+    mine = SessionList(sessions=[session_info(state, s) for s in state.store.sessions(owner)])
+    workers = other_workers(state.settings, scope)
+    key = request.headers.get(API_KEY_HEADER)
+    for answer in await ask_workers(workers, "/v1/sessions", {API_KEY_HEADER: key} if key
+                                    else {}):
+        if answer.body is None:
+            mine.workers_unreachable.append(answer.worker_id)
+        else:
+            mine.sessions += SessionList.model_validate_json(answer.body).sessions
+    return mine
 
 
 @router.get("/{session_id}", response_model=SessionInfo)
