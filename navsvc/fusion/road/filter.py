@@ -97,6 +97,7 @@ class RoadState:
     first_fix: tuple[float, float, float, float] | None = None  # (t, x, y, sigma) awaiting a
     # heading
     turned_rad: float = 0.0  # the gyro's turn since first_fix
+    travelled_m: float = 0.0  # the odometer's distance since first_fix
     odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
     last_odo: odometer.Window | None = None  # odometer speed window start
     last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
@@ -321,7 +322,10 @@ class RoadFilter:
             speed = self._odometer_speed(packet)
             if speed is not None:
                 self.state.odo_speed_mps = speed
-        self.state.t = packet.t if self.state.t is None else max(self.state.t, packet.t)
+        s = self.state
+        if s.odo_speed_mps is not None and s.t is not None and packet.t > s.t:
+            s.travelled_m += s.odo_speed_mps * (packet.t - s.t)
+        s.t = packet.t if s.t is None else max(s.t, packet.t)
 
     # --- GPS -----------------------------------------------------------------------------
     def _local(self, fix: GpsFix) -> tuple[float, float]:
@@ -355,9 +359,11 @@ class RoadFilter:
             moved, spread = math.hypot(east - e0, north - n0), math.hypot(sigma, sigma0)
             if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing() or \
                     fix.t - t0 > cfg.initial_heading_max_baseline_s or \
-                    abs(s.turned_rad) > cfg.initial_heading_max_turn_rad:
-                first = None  # an outlier, a car standing still, or fixes too far apart in
-                # time or turn for the line between them to be the heading: start over
+                    abs(s.turned_rad) > cfg.initial_heading_max_turn_rad or \
+                    not self._odometer_agrees(moved, spread):
+                first = None  # an outlier, a car standing still, fixes too far apart in
+                # time or turn for the line between them to be the heading, or a line the
+                # odometer did not drive (a jump of the fixes between them): start over
             elif moved >= max(cfg.initial_heading_min_move_m,
                               cfg.initial_heading_min_move_sigmas * spread):
                 heading = bearing_rad(e0, n0, east, north), (spread / moved) ** 2
@@ -365,7 +371,7 @@ class RoadFilter:
                     speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
             if first is None:
-                s.first_fix, s.turned_rad = (fix.t, east, north, sigma), 0.0
+                s.first_fix, s.turned_rad, s.travelled_m = (fix.t, east, north, sigma), 0.0, 0.0
             s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
             return
         self._reset_from_gps(fix, east, north, heading,
@@ -373,6 +379,15 @@ class RoadFilter:
         s.initialized = True
         s.first_fix = None
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
+
+    def _odometer_agrees(self, moved_m: float, spread_m: float) -> bool:
+        """Two fixes ``moved_m`` apart are as far apart as the odometer drove (within their
+        error and a tenth); true without an odometer. A start-up heading from fixes of which
+        one had jumped (non-line-of-sight) was 118 degrees off, and the drive ran 400 m away."""
+        if OdometerSpeed not in self.profile.measurements or self.state.odo_speed_mps is None:
+            return True
+        travelled = self.state.travelled_m
+        return abs(moved_m - travelled) <= 3.0 * spread_m + 0.1 * travelled
 
     def _standing(self) -> bool:
         """The odometer says the car stands still (GPS fixes then only wander)."""
