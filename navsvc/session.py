@@ -124,23 +124,19 @@ _DEG = math.pi / 180.0  # math.radians(x) is x times this
 
 
 class _Run:
-    """Dead-reckoning samples waiting to go through the filter as one run (columns)."""
+    """Dead-reckoning samples waiting to go through the filter as one run (rows)."""
 
-    __slots__ = ("indices", "t", "kind", "values")
+    __slots__ = ("indices", "rows")
 
     def __init__(self) -> None:
         self.indices: list[int] = []
-        self.t: list[float] = []
-        self.kind: list[int] = []
-        self.values: list[tuple[float | None, ...]] = []
+        self.rows: list[tuple[float | None, ...]] = []
 
     def add(self, index: int, packet: bulk.Imu | bulk.Odometer | bulk.Steering,
             kind: int) -> None:
         """A sample, with the conversions of ``packets.*.core`` (degrees to radians; the
         6-axis fields stand in for the planar ones)."""
         self.indices.append(index)
-        self.t.append(packet.t)
-        self.kind.append(kind)
         if kind == IMU:
             p: Any = packet
             yaw, fwd, left = p.yaw_rate_dps, p.accel_fwd_mps2, p.accel_left_mps2
@@ -149,21 +145,22 @@ class _Run:
             if p.accel_mps2 is not None:
                 fwd = p.accel_mps2[0] if fwd is None else fwd
                 left = p.accel_mps2[1] if left is None else left
-            self.values.append((None if yaw is None else yaw * _DEG, fwd, left,
-                                None, None, None, None))
+            self.rows.append((p.t, IMU, None if yaw is None else yaw * _DEG, fwd, left,
+                              None, None, None, None))
         elif kind == ODOMETER:
             o: Any = packet
-            self.values.append((None, None, None, o.distance_m, o.ticks, o.speed_mps, None))
+            self.rows.append((o.t, ODOMETER, None, None, None, o.distance_m, o.ticks,
+                              o.speed_mps, None))
         else:
             a: Any = packet
-            self.values.append((None, None, None, None, None, None, a.angle_deg * _DEG))
+            self.rows.append((a.t, STEERING, None, None, None, None, None, None,
+                              a.angle_deg * _DEG))
 
-    def take(self) -> SampleRun:
-        """The samples as a run; empties this one."""
-        run = SampleRun(np.array(self.t, dtype=np.float64), np.array(self.kind, dtype=np.int8),
-                        np.array(self.values, dtype=np.float64).reshape(-1, N_COLUMNS))
-        self.t, self.kind, self.values = [], [], []
-        return run
+    def take(self) -> tuple[list[int], SampleRun]:
+        """The samples' indices and run; empties this one."""
+        indices, rows = self.indices, self.rows
+        self.indices, self.rows = [], []
+        return indices, SampleRun(np.array(rows, dtype=np.float64).reshape(-1, N_COLUMNS))
 
 
 class VehicleSession:
@@ -308,8 +305,7 @@ class VehicleSession:
     def _apply_run(self, pending: _Run, result: BatchResult, accepted: list[int]) -> None:
         """Pending samples through the engine as one run, stopping where an estimate is to
         be placed or the matcher is due, as the per-packet path places and steps it."""
-        indices, pending.indices = pending.indices, []
-        run = pending.take()
+        indices, run = pending.take()
         interval = None if self.matcher is None else self.config.match_interval_s
         k = 0
         while k < len(run):

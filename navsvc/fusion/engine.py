@@ -25,7 +25,7 @@ from navsvc.fusion.ins.strapdown import StrapdownFilter, StrapdownOptions
 from navsvc.fusion.kalman import Measurement
 from navsvc.fusion.profiles import FilterKind
 from navsvc.fusion.reorder import ReorderWindow, Replayable, S
-from navsvc.fusion.road.batch import SampleRun, sample_packet
+from navsvc.fusion.road.batch import SampleRun, T
 from navsvc.fusion.road.filter import RoadFilter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, Packet
@@ -93,10 +93,9 @@ class FusionEngine:
         :class:`PacketError` for it)."""
         f = self.filter
         if isinstance(f, RoadFilter) and f.state.initialized and f.state.t is not None and \
-                run.t[start] >= f.state.t:
+                run.rows[start, T] >= f.state.t:
             return self.window.add_run(f, run, start, True, last_match_t, match_interval_s)
-        packet = sample_packet(float(run.t[start]), int(run.kind[start]), run.values[start])
-        return start + 1, self.add(packet)
+        return start + 1, self.add(run.packet(start))
 
     def estimate(self) -> FusedEstimate | None:
         """The current estimate, or None before initialisation."""

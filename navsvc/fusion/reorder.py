@@ -22,7 +22,7 @@ from collections import deque
 from typing import Generic, Protocol, TypeVar
 
 from navsvc.errors import PacketError, RejectReason
-from navsvc.fusion.road.batch import SampleRun
+from navsvc.fusion.road.batch import SampleRun, T
 from navsvc.types import FusedEstimate, Packet
 
 SNAPSHOT_EVERY = 8  # packets between saved states
@@ -105,7 +105,7 @@ class ReorderWindow(Generic[S]):
             return f.apply_run(run, start, events, last_match_t, match_interval_s)
         before = self._snapshot_if_due(f)
         end, out = f.apply_run(run, start, events, last_match_t, match_interval_s)
-        self._log(before, run.part(start, end), float(run.t[end - 1]))
+        self._log(before, run.part(start, end), float(run.rows[end - 1, T]))
         return end, out
 
     def _apply_logged(self, f: Replayable[S], packet: Item) -> list[FusedEstimate]:

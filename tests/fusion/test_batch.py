@@ -4,19 +4,24 @@
 ``FusionEngine.add`` gives a packet at a time: bit for bit, except where the standstill update
 runs (odometer configurations), whose 2x2 inverse and gain come from LAPACK/BLAS in the
 per-packet path and from plain loops in the kernel: there the states agree to ``TOLERANCE``.
+And the sparse covariance products both paths use are the plain ones, bit for bit.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from navsvc.fusion import PROFILES, FilterKind, FusionConfig, FusionEngine, SensorConfig
+from navsvc.fusion import PROFILES, FilterKind, FusionConfig, FusionEngine, SensorConfig, kalman
+from navsvc.fusion.road import motion
 from navsvc.fusion.road.batch import SampleRun
+from navsvc.fusion.road.measurements import _predict_with_gyro, gyro_input
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.types import FusedEstimate, GpsFix, Packet
 from navsvc.wire.packets import parse
@@ -148,3 +153,59 @@ def test_a_late_packet_inside_a_run_is_replayed_to_the_in_order_state(
     a, b = in_order.filter.state, shuffled.filter.state
     assert np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
     assert a.t == b.t
+
+
+@numba.njit
+def _old_predict_with_gyro(x: np.ndarray, P: np.ndarray, dt_s: float, max_step_s: float,
+                           densities: np.ndarray, rate_left: float, variance: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """The gyro step as written before the sparse products: the plain ``matmul`` chain."""
+    remaining = dt_s
+    while remaining > 1e-9:
+        step = min(remaining, max_step_s)
+        x, F, q = motion._propagate(x, step, math.nan, densities, math.nan)
+        P = kalman.predict(P, F, q)
+        remaining -= step
+    rate, J = gyro_input(x, rate_left)
+    A = np.eye(len(x))
+    A[motion.HEADING_RATE, :] = J
+    P_new = kalman.matmul(kalman.matmul(A, P), A.T)
+    P_new[motion.HEADING_RATE, motion.HEADING_RATE] += \
+        variance / (1.0 + x[motion.GYRO_SCALE]) ** 2
+    x_new = x.copy()
+    x_new[motion.HEADING_RATE] = rate
+    return x_new, 0.5 * (P_new + P_new.T)
+
+
+@settings(max_examples=200)
+@given(seed=st.integers(0, 2**32 - 1), zeros=st.floats(0.0, 0.95), n=st.integers(1, 21),
+       m=st.integers(1, 21))
+def test_the_sparse_products_are_the_plain_ones_bit_for_bit(seed: int, zeros: float, n: int,
+                                                            m: int) -> None:
+    """``motion.matmul_transposed`` and ``symmetrised`` (the road filter's covariance steps)
+    give exactly what ``kalman.matmul(A, B.T)`` and ``0.5 * (S + S.T)`` give."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, m)) * (rng.random((n, m)) > zeros)
+    B = rng.normal(size=(n, m)) * (rng.random((n, m)) > zeros) * 10.0 ** rng.integers(-8, 8)
+    assert np.array_equal(motion.matmul_transposed(A, B), kalman.matmul(A, B.T))
+    S = rng.normal(size=(n, n))
+    assert np.array_equal(motion.symmetrised(S.copy()), 0.5 * (S + S.T))
+    F = np.eye(n) + rng.normal(size=(n, n)) * (rng.random((n, n)) > zeros)
+    M = rng.normal(size=(n, n))
+    q = rng.random(n)
+    assert np.array_equal(motion._predict_covariance(M @ M.T, F, q),
+                          kalman.predict(M @ M.T, F, q))
+
+
+@settings(max_examples=100)
+@given(seed=st.integers(0, 2**32 - 1), dt=st.floats(0.0, 0.35), rate=st.floats(-2.0, 2.0))
+def test_the_gyro_step_is_the_plain_matmul_chain_bit_for_bit(seed: int, dt: float,
+                                                             rate: float) -> None:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=motion.N_STATES)
+    M = rng.normal(size=(motion.N_STATES, motion.N_STATES))
+    P = M @ M.T
+    densities = motion.ProcessNoise().densities
+    new = _predict_with_gyro(x, P, dt, 0.1, math.nan, densities, math.nan, rate, 2.5e-5)
+    old = _old_predict_with_gyro(x, P, dt, 0.1, densities, rate, 2.5e-5)
+    assert np.array_equal(new[0], old[0]) and np.array_equal(new[1], old[1])

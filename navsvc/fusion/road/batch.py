@@ -29,11 +29,9 @@ the states agree to about 1e-12 relative (``tests/fusion/test_batch.py``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import numpy.typing as npt
 
 from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
@@ -65,10 +63,12 @@ if TYPE_CHECKING:
     from navsvc.fusion.profiles import Profile
     from navsvc.fusion.road.filter import RoadState
 
-IMU, ODOMETER, STEERING = 0, 1, 2  # SampleRun.kind codes
-# SampleRun.values columns (NaN: the field is absent)
-YAW_RPS, ACCEL_FWD, ACCEL_LEFT, ODO_DISTANCE, ODO_TICKS, ODO_SPEED, STEER_RAD = range(7)
-N_COLUMNS = 7
+IMU, ODOMETER, STEERING = 0, 1, 2  # SampleRun kind codes
+# SampleRun.rows columns: time [s], kind, then the fields in SI units and radians (NaN: the
+# field is absent)
+T, KIND, YAW_RPS, ACCEL_FWD, ACCEL_LEFT, ODO_DISTANCE, ODO_TICKS, ODO_SPEED, STEER_RAD = \
+    range(9)
+N_COLUMNS = 9
 
 # RunScalars: the filter's scalar state that a run reads and writes (NaN: None)
 (S_T, S_ACCEL_FWD, S_STILL, S_LAST_DISTANCE, S_WINDOW_T, S_WINDOW_D, S_ODO_SPEED,
@@ -86,60 +86,66 @@ DONE, OUTPUT, MATCH = 0, 1, 2  # why run_samples returned
 _NAN = math.nan
 
 
-@dataclass(frozen=True)
 class SampleRun:
-    """Consecutive dead-reckoning samples as columns: ``t`` (s), ``kind`` (IMU, ODOMETER,
-    STEERING) and ``values`` (n x N_COLUMNS, in SI units and radians, NaN where absent)."""
+    """Consecutive dead-reckoning samples as one array of rows (``N_COLUMNS``: time, kind
+    (IMU, ODOMETER, STEERING) and the fields), one array so that a compiled call takes
+    it as one argument."""
 
-    t: Array
-    kind: npt.NDArray[np.int8]
-    values: Array
+    __slots__ = ("rows",)
+
+    def __init__(self, rows: Array) -> None:
+        self.rows = rows
 
     def __len__(self) -> int:
-        return len(self.t)
+        return len(self.rows)
+
+    @property
+    def t(self) -> Array:
+        return self.rows[:, T]
 
     @property
     def first_t(self) -> float:
-        return float(self.t[0])
+        return float(self.rows[0, T])
 
     def part(self, start: int, stop: int) -> SampleRun:
-        """Samples ``start`` to ``stop`` (views, no copy)."""
-        return SampleRun(self.t[start:stop], self.kind[start:stop], self.values[start:stop])
+        """Samples ``start`` to ``stop`` (a view, no copy)."""
+        return SampleRun(self.rows[start:stop])
 
     def split_at(self, t: float) -> tuple[SampleRun, SampleRun]:
         """The samples up to and including time ``t``, and the ones after."""
-        k = int(np.searchsorted(self.t, t, side="right"))
+        k = int(np.searchsorted(self.rows[:, T], t, side="right"))
         return self.part(0, k), self.part(k, len(self))
+
+    def packet(self, i: int) -> Packet:
+        """Sample ``i`` as the packet it stands for."""
+        return sample_packet(self.rows[i])
 
     def packets(self) -> list[Packet]:
         """The samples as packets (for the per-packet path)."""
-        return [sample_packet(float(t), int(k), row)
-                for t, k, row in zip(self.t, self.kind, self.values, strict=True)]
+        return [sample_packet(row) for row in self.rows]
 
     @classmethod
     def of(cls, packets: list[Packet]) -> SampleRun:
         """A run of packets (IMU, odometer and steering samples only)."""
-        t = np.empty(len(packets))
-        kind = np.empty(len(packets), dtype=np.int8)
-        values = np.full((len(packets), N_COLUMNS), _NAN)
+        rows = np.full((len(packets), N_COLUMNS), _NAN)
         for i, p in enumerate(packets):
-            t[i] = p.t
+            rows[i, T] = p.t
             if isinstance(p, ImuSample):
-                kind[i] = IMU
-                values[i, YAW_RPS] = _nan(p.yaw_rate_rps)
-                values[i, ACCEL_FWD] = _nan(p.accel_fwd_mps2)
-                values[i, ACCEL_LEFT] = _nan(p.accel_left_mps2)
+                rows[i, KIND] = IMU
+                rows[i, YAW_RPS] = _nan(p.yaw_rate_rps)
+                rows[i, ACCEL_FWD] = _nan(p.accel_fwd_mps2)
+                rows[i, ACCEL_LEFT] = _nan(p.accel_left_mps2)
             elif isinstance(p, OdometerSample):
-                kind[i] = ODOMETER
-                values[i, ODO_DISTANCE] = _nan(p.distance_m)
-                values[i, ODO_TICKS] = _nan(None if p.ticks is None else float(p.ticks))
-                values[i, ODO_SPEED] = _nan(p.speed_mps)
+                rows[i, KIND] = ODOMETER
+                rows[i, ODO_DISTANCE] = _nan(p.distance_m)
+                rows[i, ODO_TICKS] = _nan(None if p.ticks is None else float(p.ticks))
+                rows[i, ODO_SPEED] = _nan(p.speed_mps)
             elif isinstance(p, SteeringSample):
-                kind[i] = STEERING
-                values[i, STEER_RAD] = p.angle_rad
+                rows[i, KIND] = STEERING
+                rows[i, STEER_RAD] = p.angle_rad
             else:
                 raise TypeError(f"not a dead-reckoning sample: {type(p).__name__}")
-        return cls(t, kind, values)
+        return cls(rows)
 
 
 def _nan(value: float | None) -> float:
@@ -150,8 +156,9 @@ def _none(value: float) -> float | None:
     return None if math.isnan(value) else float(value)
 
 
-def sample_packet(t: float, kind: int, row: Array) -> Packet:
+def sample_packet(row: Array) -> Packet:
     """One row of a run as the packet it stands for."""
+    t, kind = float(row[T]), int(row[KIND])
     if kind == IMU:
         return ImuSample(t=t, yaw_rate_rps=_none(row[YAW_RPS]),
                          accel_fwd_mps2=_none(row[ACCEL_FWD]),
@@ -165,23 +172,24 @@ def sample_packet(t: float, kind: int, row: Array) -> Packet:
 
 
 @jit
-def run_samples(x: Array, P: Array, scalars: Array, params: Array, densities: Array,
-                densities_accel: Array, t: Array, kind: npt.NDArray[np.int8], values: Array,
-                start: int,
+def run_samples(x: Array, P: Array, scalars: Array, params: Array, rows: Array, start: int,
                 stop_for_events: bool) -> tuple[Array, Array, int, int]:  # pragma: no cover
-    """Step the filter ``(x, P, scalars)`` through samples ``start..`` of a run; with
+    """Step the filter ``(x, P, scalars)`` through samples ``start..`` of a run's rows; with
     ``stop_for_events``, return after the first that emits an estimate (OUTPUT) or at
     which the matcher is due (MATCH). Returns ``(x, P, next index, why)``; ``scalars`` is
-    updated in place."""
-    n = len(t)
+    updated in place. ``params``: :func:`run_params`."""
+    densities = params[N_PARAMS:N_PARAMS + N_STATES]
+    densities_accel = params[N_PARAMS + N_STATES:N_PARAMS + 2 * N_STATES]
+    n = len(rows)
     i = start
     while i < n:
-        x, P = _sample(x, P, scalars, params, densities, densities_accel, t[i], kind[i],
-                       values[i])
+        t = rows[i, T]
+        x, P = _sample(x, P, scalars, params, densities, densities_accel, t,
+                       int(rows[i, KIND]), rows[i])
         i += 1
         last_out = scalars[S_LAST_OUTPUT]
-        if math.isnan(last_out) or t[i - 1] - last_out >= params[P_OUTPUT_INTERVAL]:
-            scalars[S_LAST_OUTPUT] = t[i - 1]
+        if math.isnan(last_out) or t - last_out >= params[P_OUTPUT_INTERVAL]:
+            scalars[S_LAST_OUTPUT] = t
             if stop_for_events:
                 return x, P, i, OUTPUT
             continue
@@ -317,9 +325,10 @@ def _steering(x: Array, P: Array, p: Array, angle_left_rad: float
 def run_params(config: FusionConfig, profile: Profile, process: ProcessNoise,
                match_interval_s: float | None) -> Array:
     """The constants :func:`run_samples` reads, from the filter's configuration (the
-    variances computed as the per-packet measurement models compute them)."""
+    variances computed as the per-packet measurement models compute them), then the two
+    diagonals of Q per second (``ProcessNoise.densities``, ``densities_with_accel``)."""
     used = profile.measurements
-    p = np.zeros(N_PARAMS)
+    p = np.zeros(N_PARAMS + 2 * N_STATES)
     p[P_GYRO] = float(profile.gyro)
     p[P_ACCEL_SPEED] = float(profile.speed_from_accel)
     p[P_LATERAL] = float(LateralAccel in used)
@@ -342,25 +351,31 @@ def run_params(config: FusionConfig, profile: Profile, process: ProcessNoise,
     zero = ZeroMotion()
     p[P_ZUPT_SPEED_VAR], p[P_ZUPT_RATE_VAR] = zero.sigma_mps ** 2, zero.sigma_rps ** 2
     p[P_MATCH_INTERVAL] = _nan(match_interval_s)
+    p[N_PARAMS:N_PARAMS + N_STATES] = process.densities
+    p[N_PARAMS + N_STATES:] = process.densities_with_accel
     return p
 
 
 def pack_scalars(s: RoadState, last_match_t: float | None) -> Array:
     """The run's scalar state from the filter's (None as NaN)."""
-    window = s.last_odo
-    return np.array([s.t, _nan(s.accel_fwd_mps2), float(s.still_samples),
-                     _nan(s.last_odo_distance_m), _NAN if window is None else window[0],
-                     _NAN if window is None else window[1], _nan(s.odo_speed_mps),
-                     _nan(s.last_output_t), _nan(last_match_t)])
+    window, nan = s.last_odo, _NAN
+    return np.array((
+        s.t, nan if s.accel_fwd_mps2 is None else s.accel_fwd_mps2, s.still_samples,
+        nan if s.last_odo_distance_m is None else s.last_odo_distance_m,
+        nan if window is None else window[0], nan if window is None else window[1],
+        nan if s.odo_speed_mps is None else s.odo_speed_mps,
+        nan if s.last_output_t is None else s.last_output_t,
+        nan if last_match_t is None else last_match_t), dtype=np.float64)
 
 
 def unpack_scalars(s: RoadState, scalars: Array) -> None:
-    """Write the run's scalar state back into the filter's."""
-    s.t = float(scalars[S_T])
-    s.accel_fwd_mps2 = _none(scalars[S_ACCEL_FWD])
-    s.still_samples = int(scalars[S_STILL])
-    s.last_odo_distance_m = _none(scalars[S_LAST_DISTANCE])
-    s.last_odo = None if math.isnan(scalars[S_WINDOW_T]) else \
-        (float(scalars[S_WINDOW_T]), float(scalars[S_WINDOW_D]))
-    s.odo_speed_mps = _none(scalars[S_ODO_SPEED])
-    s.last_output_t = _none(scalars[S_LAST_OUTPUT])
+    """Write the run's scalar state back into the filter's (NaN as None; NaN is the one
+    value not equal to itself)."""
+    t, accel, still, distance, window_t, window_d, speed, output, _ = scalars.tolist()
+    s.t = t
+    s.accel_fwd_mps2 = accel if accel == accel else None
+    s.still_samples = int(still)
+    s.last_odo_distance_m = distance if distance == distance else None
+    s.last_odo = (window_t, window_d) if window_t == window_t else None
+    s.odo_speed_mps = speed if speed == speed else None
+    s.last_output_t = output if output == output else None

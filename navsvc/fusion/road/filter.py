@@ -213,9 +213,7 @@ class RoadFilter:
             p = params[match_interval_s] = batch.run_params(self.config, self.profile,
                                                             self.process, match_interval_s)
         scalars = batch.pack_scalars(s, last_match_t)
-        s.x, s.P, end, why = batch.run_samples(
-            s.x, s.P, scalars, p, self.process.densities, self.process.densities_with_accel,
-            run.t, run.kind, run.values, start, events)
+        s.x, s.P, end, why = batch.run_samples(s.x, s.P, scalars, p, run.rows, start, events)
         batch.unpack_scalars(s, scalars)
         return end, [self._estimate()] if why == batch.OUTPUT else []
 

@@ -32,8 +32,10 @@ from navsvc.fusion.road.motion import (
     X_M,
     Y_M,
     ProcessNoise,
+    matmul_transposed,
     model_args,
     predict_compiled,
+    symmetrised,
 )
 
 
@@ -109,11 +111,11 @@ def _predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
         return x, P
     A = np.eye(N_STATES)
     A[HEADING_RATE, :] = J
-    P_new = kalman.matmul(kalman.matmul(A, P), A.T)
+    P_new = matmul_transposed(kalman.matmul(A, P), A)  # = matmul(matmul(A, P), A.T)
     P_new[HEADING_RATE, HEADING_RATE] += variance / (1.0 + x[GYRO_SCALE]) ** 2
     x_new = x.copy()
     x_new[HEADING_RATE] = rate
-    return x_new, 0.5 * (P_new + P_new.T)
+    return x_new, symmetrised(P_new)
 
 
 @dataclass(frozen=True)
