@@ -11,8 +11,9 @@ of a drive (10 IMU packets; gyro_odometer adds 5 odometer ones; a GPS fix a seco
 packet (all the message's time over its IMU packets), the batched path beside the
 per-packet reference in the same run, rounds interleaved:
 
-- engine: ``FusionEngine.add_run`` over the runs between fixes, ``add`` for the fixes, against
-  ``add`` for every packet;
+- engine: ``FusionEngine.add_run`` over the runs between fixes (made beforehand, as the
+  session makes them from the decoded message), ``add`` for the fixes, against ``add`` for
+  every packet;
 - ingest: a session's whole message: decode and validate the JSON text
   (``navsvc.wire.bulk``), filter, matcher steps, reply, trip-log append (a real SQLite file),
   as ``SessionStore.ingest`` does it for the WebSocket; against ``json.loads``, the pydantic
@@ -171,24 +172,39 @@ def _messages(graph: RoadGraph, sensors: SensorConfig, seconds: float
     return [t for t in ticks if t]
 
 
-def _engine_runs(engine: Any, packets: list[Any]) -> None:
-    """A message's packets through the engine: runs between the fixes."""
+def _as_runs(packets: list[Any]) -> list[Any]:
+    """A message's packets as the session hands them to the engine: the fixes, and runs of
+    the samples between them (built before the clock starts: the session builds its runs from
+    the decoded message, inside the ingest rows)."""
     from navsvc.fusion.road.batch import SampleRun
     from navsvc.types import GpsFix
 
+    items: list[Any] = []
     i = 0
     while i < len(packets):
         if isinstance(packets[i], GpsFix):
-            engine.add(packets[i])
+            items.append(packets[i])
             i += 1
             continue
         j = i + 1
         while j < len(packets) and not isinstance(packets[j], GpsFix):
             j += 1
-        run, k = SampleRun.of(packets[i:j]), 0
-        while k < len(run):
-            k = engine.add_run(run, k)[0]
+        items.append(SampleRun.of(packets[i:j]))
         i = j
+    return items
+
+
+def _engine_over(engine: Any, items: list[Any]) -> None:
+    """A message's fixes and runs through the engine (``add``, ``add_run``)."""
+    from navsvc.fusion.road.batch import SampleRun
+
+    for item in items:
+        if isinstance(item, SampleRun):
+            k = 0
+            while k < len(item):
+                k = engine.add_run(item, k)[0]
+        else:
+            engine.add(item)
 
 
 def _cases(graph: RoadGraph, sensors: SensorConfig, messages: list[list[dict[str, Any]]],
@@ -202,13 +218,14 @@ def _cases(graph: RoadGraph, sensors: SensorConfig, messages: list[list[dict[str
     texts = [json.dumps({"type": "batch", "seq": n, "packets": m}) for n, m in
              enumerate(messages)]
     parsed = [[parse(r) for r in m] for m in messages]
+    runs = [_as_runs(packets) for packets in parsed]
     options = {"sensors": sensors.value}
     config = FusionConfig(sensors=sensors)
 
     def engine_batched() -> None:
         engine = FusionEngine(config, frame=graph.frame)
-        for packets in parsed:
-            _engine_runs(engine, packets)
+        for items in runs:
+            _engine_over(engine, items)
 
     def engine_per_packet() -> None:
         engine = FusionEngine(config, frame=graph.frame)
