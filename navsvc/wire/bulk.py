@@ -133,17 +133,29 @@ class Batch:
         return records
 
 
-def decode_batch(text: str | bytes, max_seq: int) -> tuple[int, Batch] | None:
-    """``{"type": "batch", "seq": N, "packets": [...]}`` with every packet valid: its number
-    and packets; None for anything else (the caller's careful path says what is wrong)."""
+def decode_message(text: str | bytes, max_seq: int) -> tuple[int | None, Batch] | None:
+    """A WebSocket message of valid packets: a numbered batch ``{"type": "batch", "seq": N,
+    "packets": [...]}`` (its number and packets) or an array of packets (None and them);
+    None for anything else (the caller's careful path says what is wrong)."""
     try:
+        if text[:1] in ("[", b"["):
+            raw = text if isinstance(text, str) else text.decode()
+            return None, Batch(_PACKETS.decode(raw), raw)
         message = _BATCH.decode(text)
         if message.seq > max_seq:
             return None
-        raw = bytes(message.packets)
-        return message.seq, Batch(_PACKETS.decode(raw), raw.decode())
+        packets = bytes(message.packets)
+        return message.seq, Batch(_PACKETS.decode(packets), packets.decode())
     except Exception:  # noqa: BLE001 (anything it cannot take: the careful path says what)
         return None
+
+
+def decode_batch(text: str | bytes, max_seq: int) -> tuple[int, Batch] | None:
+    """:func:`decode_message` of a numbered batch only."""
+    decoded = decode_message(text, max_seq)
+    if decoded is None or decoded[0] is None:
+        return None
+    return decoded[0], decoded[1]
 
 
 def validate_all(records: list[Any]) -> list[Packet] | None:

@@ -55,6 +55,9 @@ def test_valid_packets_take_the_fast_path_with_their_own_text(
     assert seq == 7 and len(batch) == len(packets)
     assert [bulk.core(p) for p in batch.packets] == [parse(p) for p in packets]
     assert batch.records() == packets == [parse_record(p)[1] for p in packets]
+    bare = bulk.decode_message(json.dumps(packets).encode(), MAX_CLIENT_SEQ)
+    assert bare is not None and bare[0] is None and bare[1].packets == batch.packets
+    assert json.loads(bare[1].text) == packets
 
 
 @settings(max_examples=200, deadline=None)
@@ -80,6 +83,10 @@ def test_only_numbered_batches_within_the_limit_are_decoded_fast() -> None:
                     {"type": "batch", "seq": True, "packets": packets},
                     {"type": "ping"}, packets, packets[0]):
         assert bulk.decode_batch(json.dumps(message), 3) is None
+    assert bulk.decode_message(json.dumps(packets), 3) == (None, bulk.Batch(
+        [bulk.Imu(t=1.0, yaw_rate_dps=0.5)], json.dumps(packets)))
+    assert bulk.decode_message(json.dumps(packets[0]), 3) is None
+    assert bulk.decode_message("[1]", 3) is None
     assert bulk.decode_batch(b"\xff\xfe", 3) is None
     assert bulk.decode_batch('{"type": "batch", "seq": 1, "packets": [{"t": NaN, '
                              '"kind": "imu", "yaw_rate_dps": 1}]}', 3) is None

@@ -84,12 +84,13 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
 
 def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
             ) -> dict[str, Any]:
-    """The reply to one WebSocket frame; never raises. A numbered batch whose packets are
-    all valid is decoded and validated in one call (:func:`navsvc.wire.bulk.decode_batch`);
-    any other message, or one with a bad packet, the careful way, which says what is wrong."""
+    """The reply to one WebSocket frame; never raises. A numbered batch or an array whose
+    packets are all valid is decoded and validated in one call
+    (:func:`navsvc.wire.bulk.decode_message`); any other message, or one with a bad packet,
+    the careful way, which says what is wrong."""
     text = frame.get("text")
-    fast = bulk.decode_batch(text if text is not None else frame.get("bytes") or b"",
-                             MAX_CLIENT_SEQ)
+    fast = bulk.decode_message(text if text is not None else frame.get("bytes") or b"",
+                               MAX_CLIENT_SEQ)
     if fast is not None:
         return _ingest(state, session_id, owner, fast[1], fast[0])
     if text is None:
