@@ -6,16 +6,33 @@ Both filters get identical state, covariance, Jacobians and noise from
 ``predict``/``update``, our ``kalman.predict``/``correct`` with its gate), plus the
 shared model evaluation. Needs the ``bench`` extra (``pip install -e '.[bench]'``).
 
-    python bench/fusion_bench.py [--steps 20000]
+Then the whole engine a packet at a time, and the ingest of issue 17 in messages of 0.1 s
+of a drive (10 IMU packets; gyro_odometer adds 5 odometer ones; a GPS fix a second), per IMU
+packet (all the message's time over its IMU packets), the batched path beside the
+per-packet reference in the same run, rounds interleaved:
+
+- engine: ``FusionEngine.add_run`` over the runs between fixes (made beforehand, as the
+  session makes them from the decoded message), ``add`` for the fixes, against ``add`` for
+  every packet;
+- ingest: a session's whole message: decode and validate the JSON text
+  (``navsvc.wire.bulk``), filter, matcher steps, reply, trip-log append (a real SQLite file),
+  as ``SessionStore.ingest`` does it for the WebSocket; against ``json.loads``, the pydantic
+  parser and ``add`` packet by packet (``VehicleSession.add_records_per_packet``) and the log
+  append that encodes the records. Where its time goes: a cProfile of one batched round.
+
+    python bench/fusion_bench.py [--steps 20000] [--seconds 60] [--rounds 5]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -26,6 +43,7 @@ from navsvc.fusion.kalman import Linearised
 from navsvc.fusion.road import motion
 from navsvc.fusion.road.measurements import GpsPosition, GyroRate, SteeringRate
 from navsvc.fusion.road.motion import N_STATES
+from roadgraph import RoadGraph
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -139,9 +157,167 @@ def engine_us_per_packet(sensors: SensorConfig, rounds: int = 5) -> float:
     return median_us(times)
 
 
+def _messages(graph: RoadGraph, sensors: SensorConfig, seconds: float
+              ) -> list[list[dict[str, Any]]]:
+    """The packets of each 0.1 s of a simulated drive (as bench/service_load.py sends them)."""
+    from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+
+    kinds = set(SENSOR_KINDS[sensors.value])
+    drive = [r for r in simulate_drive(graph, DriveSpec(duration_s=seconds, seed=7,
+                                                        tunnels_block_gps=False))
+             if r["kind"] in kinds]
+    ticks: list[list[dict[str, Any]]] = [[] for _ in range(int(drive[-1]["t"] / 0.1) + 1)]
+    for r in drive:
+        ticks[int(r["t"] / 0.1)].append(r)
+    return [t for t in ticks if t]
+
+
+def _as_runs(packets: list[Any]) -> list[Any]:
+    """A message's packets as the session hands them to the engine: the fixes, and runs of
+    the samples between them (built before the clock starts: the session builds its runs from
+    the decoded message, inside the ingest rows)."""
+    from navsvc.fusion.road.batch import SampleRun
+    from navsvc.types import GpsFix
+
+    items: list[Any] = []
+    i = 0
+    while i < len(packets):
+        if isinstance(packets[i], GpsFix):
+            items.append(packets[i])
+            i += 1
+            continue
+        j = i + 1
+        while j < len(packets) and not isinstance(packets[j], GpsFix):
+            j += 1
+        items.append(SampleRun.of(packets[i:j]))
+        i = j
+    return items
+
+
+def _engine_over(engine: Any, items: list[Any]) -> None:
+    """A message's fixes and runs through the engine (``add``, ``add_run``)."""
+    from navsvc.fusion.road.batch import SampleRun
+
+    for item in items:
+        if isinstance(item, SampleRun):
+            k = 0
+            while k < len(item):
+                k = engine.add_run(item, k)[0]
+        else:
+            engine.add(item)
+
+
+def _cases(graph: RoadGraph, sensors: SensorConfig, messages: list[list[dict[str, Any]]],
+           store: Any) -> dict[str, Callable[[], None]]:
+    """The four timed runs over the messages: engine and ingest, batched and per packet."""
+    from navsvc.fusion import FusionEngine
+    from navsvc.session import MAX_CLIENT_SEQ
+    from navsvc.wire import bulk
+    from navsvc.wire.packets import parse
+
+    texts = [json.dumps({"type": "batch", "seq": n, "packets": m}) for n, m in
+             enumerate(messages)]
+    parsed = [[parse(r) for r in m] for m in messages]
+    runs = [_as_runs(packets) for packets in parsed]
+    options = {"sensors": sensors.value}
+    config = FusionConfig(sensors=sensors)
+
+    def engine_batched() -> None:
+        engine = FusionEngine(config, frame=graph.frame)
+        for items in runs:
+            _engine_over(engine, items)
+
+    def engine_per_packet() -> None:
+        engine = FusionEngine(config, frame=graph.frame)
+        for packets in parsed:
+            for p in packets:
+                engine.add(p)
+
+    def ingest_batched() -> None:  # as the WebSocket route does it
+        session = store.create("", "bench", options)
+        for text in texts:
+            decoded = bulk.decode_batch(text, MAX_CLIENT_SEQ)
+            assert decoded is not None
+            store.ingest(session, decoded[1], decoded[0])
+
+    def ingest_per_packet() -> None:  # as it did before issue 17
+        session = store.create("", "bench", options)
+        session.vehicle.add_records = session.vehicle.add_records_per_packet
+        for text in texts:
+            message = json.loads(text)
+            store.ingest(session, message["packets"], message["seq"])
+
+    return {"engine batched": engine_batched, "engine per packet": engine_per_packet,
+            "ingest batched": ingest_batched, "ingest per packet": ingest_per_packet}
+
+
+def ingest_us_per_imu_packet(graph: RoadGraph, sensors: SensorConfig, seconds: float,
+                             rounds: int, tmp: Path) -> dict[str, Any]:
+    """The engine and the whole ingest, batched and per packet, µs per IMU packet (medians
+    of ``rounds`` interleaved rounds over a ``seconds`` drive)."""
+    from navsvc.session import SessionStore
+    from navsvc.triplog import TripLog
+
+    messages = _messages(graph, sensors, seconds)
+    imu = sum(r["kind"] == "imu" for m in messages for r in m)
+    log = TripLog(tmp / f"{sensors.value}.trips.db")
+    cases = _cases(graph, sensors, messages, SessionStore(graph, log))
+    for fn in cases.values():  # compile, fill caches
+        fn()
+    times: dict[str, list[float]] = {name: [] for name in cases}
+    cpu: dict[str, list[float]] = {name: [] for name in cases}
+    for _ in range(rounds):
+        for name, fn in cases.items():
+            started, started_cpu = time.perf_counter(), time.process_time()
+            fn()
+            cpu[name].append((time.process_time() - started_cpu) / imu)
+            times[name].append((time.perf_counter() - started) / imu)
+    result: dict[str, Any] = {name: median_us(t) for name, t in times.items()}
+    result |= {f"{name} cpu": median_us(t) for name, t in cpu.items()}
+    result["imu_packets"] = imu
+    result["packets"] = sum(map(len, messages))
+    result["where_ingest_time_goes_pct"] = _profile(cases["ingest batched"])
+    log.close()
+    return result
+
+
+PROFILE_PARTS = {  # (module path, function) whose cumulative time is a part of the ingest
+    "decode + validate (msgspec)": ("navsvc/wire/bulk.py", "decode_batch"),
+    "filter (engine add_run/add)": ("navsvc/fusion/engine.py", "add_run"),
+    "filter, GPS fixes (engine add)": ("navsvc/fusion/engine.py", "add"),
+    "matcher steps": ("navsvc/matching/online.py", "update"),
+    "reply (positions JSON)": ("navsvc/session.py", "batch_reply"),
+    "trip log append (SQLite)": ("navsvc/triplog.py", "append"),
+    "checkpoints (pickle + SQLite)": ("navsvc/session.py", "checkpoint"),
+}
+
+
+def _profile(fn: Callable[[], None]) -> dict[str, float]:
+    """Shares of ``fn``'s time (cProfile, cumulative) of the parts of the ingest."""
+    import cProfile
+    import pstats
+
+    profiler = cProfile.Profile()
+    profiler.runcall(fn)
+    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
+    total = max(ct for (_, _, _, ct, _) in stats.values())
+    shares = {}
+    for part, (path, name) in PROFILE_PARTS.items():
+        cumulative = sum(ct for (file, _, fname), (_, _, _, ct, _) in stats.items()
+                         if file.endswith(path) and fname == name)
+        shares[part] = 100.0 * cumulative / total
+    shares["engine: of which the compiled runs"] = 100.0 * sum(
+        ct for (file, _, fname), (_, _, _, ct, _) in stats.items()
+        if file.endswith("navsvc/fusion/road/batch.py") and fname == "run_samples") / total
+    return shares
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=20000)
+    parser.add_argument("--seconds", type=float, default=60.0,
+                        help="drive length of the ingest rows")
+    parser.add_argument("--rounds", type=int, default=5, help="interleaved rounds")
     args = parser.parse_args()
     rows, data = [], {}
     for sensors in (s for s in SensorConfig if PROFILES[s].filter == FilterKind.ROAD):
@@ -158,8 +334,31 @@ def main() -> None:
     print_table("Whole engine, median µs per packet of a 120 s drive (5 rounds; gyro_accel's "
                 "packets are 99 % IMU)", ["sensors", "µs per packet"],
                 [[name, us] for name, us in engine.items()])
+    graph = RoadGraph.open(ROOT / "maps" / "monaco.db")
+    ingest = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for sensors in (SensorConfig.GYRO_ACCEL, SensorConfig.GYRO_ODOMETER):
+            ingest[sensors.value] = ingest_us_per_imu_packet(graph, sensors, args.seconds,
+                                                             args.rounds, Path(tmp))
+    print_table(f"Ingest in messages of 0.1 s (10 IMU packets), median µs per IMU packet of "
+                f"{args.rounds} interleaved rounds over a {args.seconds:.0f} s drive "
+                "(target <= 5; wall clock, and this process's CPU time, which a shared "
+                "machine inflates less)",
+                ["sensors", "path", "batched µs", "per packet µs", "per packet / batched",
+                 "batched CPU µs", "per packet CPU µs"],
+                [[name, part, r[f"{part} batched"], r[f"{part} per packet"],
+                  r[f"{part} per packet"] / r[f"{part} batched"], r[f"{part} batched cpu"],
+                  r[f"{part} per packet cpu"]]
+                 for name, r in ingest.items() for part in ("engine", "ingest")])
+    print_table("Where the batched ingest's time goes (% of it, cProfile cumulative; parts "
+                "overlap: the matcher's share includes its map feedback into the filter)",
+                ["part", *ingest], [[part, *(r["where_ingest_time_goes_pct"][part]
+                                             for r in ingest.values())]
+                                    for part in next(iter(ingest.values()))[
+                                        "where_ingest_time_goes_pct"]])
     write_json("fusion_bench", {"steps": args.steps, "results": data,
-                                "engine_us_per_packet": engine})
+                                "engine_us_per_packet": engine,
+                                "ingest_us_per_imu_packet": ingest})
 
 
 if __name__ == "__main__":

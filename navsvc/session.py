@@ -15,6 +15,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import io
+import json
 import logging
 import math
 import pickle
@@ -27,6 +28,8 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from navsvc.errors import (
     BatchAlreadyApplied,
@@ -46,9 +49,18 @@ from navsvc.fusion import (
     SensorConfig,
     StrapdownOptions,
 )
+from navsvc.fusion.road.batch import IMU, N_COLUMNS, ODOMETER, STEERING, SampleRun
+from navsvc.fusion.road.filter import RoadFilter
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
 from navsvc.triplog import Checkpoint, LoggedSession, TripLog
-from navsvc.types import FusedEstimate, GpsFix, MatchedPosition, MatchState
+from navsvc.types import (
+    FusedEstimate,
+    GpsFix,
+    MatchedPosition,
+    MatchState,
+    Packet,
+)
+from navsvc.wire import bulk
 from navsvc.wire.packets import parse_record
 from navsvc.wire.positions import position_json
 from roadgraph import LocalFrame, RoadGraph
@@ -90,9 +102,65 @@ class BatchResult:
     positions: list[MatchedPosition] = field(default_factory=list)
     rejections: list[Rejection] = field(default_factory=list)
     accepted: int = 0
-    records: list[dict[str, Any]] = field(default_factory=list)  # the accepted, as validated
-    indices: list[int] = field(default_factory=list)  # of each of those in the batch
+    indices: list[int] = field(default_factory=list)  # of each of the accepted in the batch
     faulted: bool = False  # the pipeline raised on a packet: its state may be torn
+    encoded: str | None = None  # the accepted records as one JSON array, when that is the
+    # message's own text (every packet accepted as it came): what the trip log stores
+    decoded: list[dict[str, Any]] | None = None  # the accepted, as validated (None: from
+    # ``encoded`` when asked)
+
+    @property
+    def records(self) -> list[dict[str, Any]]:
+        """The accepted records, as validated (and logged)."""
+        if self.decoded is None:
+            self.decoded = json.loads(self.encoded) if self.encoded else []
+        return self.decoded
+
+
+_SKIP = object()  # a record add_records skips (simulator truth)
+_DEAD_RECKONING: dict[type, int] = {bulk.Imu: IMU, bulk.Odometer: ODOMETER,
+                                    bulk.Steering: STEERING}
+_DEG = math.pi / 180.0  # math.radians(x) is x times this
+
+
+class _Run:
+    """Dead-reckoning samples waiting to go through the filter as one run (rows)."""
+
+    __slots__ = ("indices", "rows")
+
+    def __init__(self) -> None:
+        self.indices: list[int] = []
+        self.rows: list[tuple[float | None, ...]] = []
+
+    def add(self, index: int, packet: bulk.Imu | bulk.Odometer | bulk.Steering,
+            kind: int) -> None:
+        """A sample, with the conversions of ``packets.*.core`` (degrees to radians; the
+        6-axis fields stand in for the planar ones)."""
+        self.indices.append(index)
+        if kind == IMU:
+            p: Any = packet
+            yaw, fwd, left = p.yaw_rate_dps, p.accel_fwd_mps2, p.accel_left_mps2
+            if yaw is None and p.gyro_dps is not None:
+                yaw = p.gyro_dps[2]
+            if p.accel_mps2 is not None:
+                fwd = p.accel_mps2[0] if fwd is None else fwd
+                left = p.accel_mps2[1] if left is None else left
+            self.rows.append((p.t, IMU, None if yaw is None else yaw * _DEG, fwd, left,
+                              None, None, None, None))
+        elif kind == ODOMETER:
+            o: Any = packet
+            self.rows.append((o.t, ODOMETER, None, None, None, o.distance_m, o.ticks,
+                              o.speed_mps, None))
+        else:
+            a: Any = packet
+            self.rows.append((a.t, STEERING, None, None, None, None, None, None,
+                              a.angle_deg * _DEG))
+
+    def take(self) -> tuple[list[int], SampleRun]:
+        """The samples' indices and run; empties this one."""
+        indices, rows = self.indices, self.rows
+        self.indices, self.rows = [], []
+        return indices, SampleRun(np.array(rows, dtype=np.float64).reshape(-1, N_COLUMNS))
 
 
 class VehicleSession:
@@ -117,42 +185,158 @@ class VehicleSession:
         """The metric frame of positions (the map's; else anchored at the first GPS fix)."""
         return self.engine.frame
 
-    def add_records(self, records: Iterable[Any], first_index: int = 0,
+    def add_records(self, records: Iterable[Any] | bulk.Batch, first_index: int = 0,
                     skip_truth: bool = True) -> BatchResult:
         """Parse and apply records in order; refuse the bad ones one by one. Simulator ground
         truth (``kind: "truth"``) travels in the same files and is skipped unless
         ``skip_truth`` is False (the service refuses it as an unknown kind).
 
+        ``records``: JSON values, or a :class:`navsvc.wire.bulk.Batch` (a message decoded and
+        validated in one call). A list is validated in one call when every record passes
+        (:func:`navsvc.wire.bulk.validate_all`), else record by record, with the reasons of
+        :mod:`navsvc.wire.packets`. Runs of dead-reckoning samples then go through the
+        filter's batched path (:meth:`FusionEngine.add_run`), everything else a packet at a
+        time; the matcher steps where it would packet by packet, so the outputs are the same.
+
         A packet the pipeline fails on (a fault of ours that validation let through) is
         refused as ``unusable`` and the result marked ``faulted``: the caller rebuilds the
         pipeline, since the failure may have left it half updated."""
-        result = BatchResult()
+        if isinstance(records, bulk.Batch):
+            return self._add_items(list(records.packets), None, records, first_index)
+        source = records if isinstance(records, list) else list(records)
+        valid = bulk.validate_all(source)
+        items: list[Any] = [self._validate(record, skip_truth) for record in source] \
+            if valid is None else list(valid)
+        return self._add_items(items, source, None, first_index)
+
+    def add_records_per_packet(self, records: Iterable[Any], first_index: int = 0,
+                               skip_truth: bool = True) -> BatchResult:
+        """:meth:`add_records` the reference way: each record parsed by
+        :mod:`navsvc.wire.packets` and applied alone (``FusionEngine.add``). The batched
+        path's outputs are checked against it (``tests/test_batched_session.py``)."""
+        result = BatchResult(decoded=[])
         for index, record in enumerate(records, start=first_index):
             if skip_truth and isinstance(record, dict) and record.get("kind") == "truth":
                 continue
             try:
                 packet, canonical = parse_record(record)
-                self._check_time(packet.t)
-                if isinstance(packet, GpsFix):
-                    self._check_on_map(packet)
-                estimates = self.engine.add(packet)
-                positions = [self._place(e) for e in estimates]
-                if not estimates:
-                    self._step_matcher()
             except PacketError as exc:
                 result.rejections.append(Rejection(index, exc.reason, exc.detail))
                 continue
-            except Exception as exc:  # noqa: BLE001 (one packet must not fail the batch)
-                log.exception("packet %d could not be applied: %r", index, record)
-                result.rejections.append(Rejection(index, RejectReason.UNUSABLE,
-                                                   f"{type(exc).__name__}: {exc}"))
-                result.faulted = True
-                continue
-            result.accepted += 1
-            result.records.append(canonical)
-            result.indices.append(index)
-            result.positions += positions
+            if self._apply_packet(index, packet, result):
+                result.accepted += 1
+                result.records.append(canonical)
+                result.indices.append(index)
         return result
+
+    @staticmethod
+    def _validate(record: Any, skip_truth: bool) -> Any:
+        """One record: a bulk packet, ``(packet, canonical record)`` from the careful
+        parser (other kinds, unknown fields), a :class:`PacketError`, or ``_SKIP``."""
+        if skip_truth and isinstance(record, dict) and record.get("kind") == "truth":
+            return _SKIP
+        packet = bulk.validate_one(record)
+        if packet is not None:
+            return packet
+        try:
+            return parse_record(record)
+        except PacketError as exc:
+            return exc
+
+    def _add_items(self, items: list[Any], records: list[Any] | None,
+                   message: bulk.Batch | None, first_index: int) -> BatchResult:
+        """Apply validated items (see :meth:`_validate`) of ``records`` (or of ``message``,
+        whose text is what the trip log gets when all of it is accepted)."""
+        result = BatchResult()
+        canonical: dict[int, dict[str, Any]] = {}  # of the records the careful parser took
+        run = _Run()
+        road = isinstance(self.engine.filter, RoadFilter)
+        latest = self.engine.t
+        accepted: list[int] = []
+        for index, item in enumerate(items, start=first_index):
+            kind = _DEAD_RECKONING.get(type(item)) if road else None
+            if kind is not None and latest is not None and \
+                    latest <= item.t <= latest + MAX_TIME_JUMP_S:
+                run.add(index, item, kind)
+                latest = item.t
+                continue
+            if run.indices:
+                self._apply_run(run, result, accepted)
+            if item is _SKIP:
+                continue
+            if isinstance(item, PacketError):
+                result.rejections.append(Rejection(index, item.reason, item.detail))
+                continue
+            if isinstance(item, tuple):
+                packet, canonical[index] = item
+            else:
+                packet = bulk.core(item)
+            if self._apply_packet(index, packet, result):
+                accepted.append(index)
+            latest = self.engine.t
+        if run.indices:
+            self._apply_run(run, result, accepted)
+        result.accepted, result.indices = len(accepted), accepted
+        if message is not None and len(accepted) == len(items):
+            result.encoded = message.text  # as it came: decoded only when asked
+        else:
+            source = records if records is not None else \
+                message.records() if message is not None else []
+            result.decoded = [canonical[i] if i in canonical else dict(source[i - first_index])
+                              for i in accepted]
+        return result
+
+    def _apply_packet(self, index: int, packet: Packet, result: BatchResult) -> bool:
+        """One packet through the engine, the per-packet way; False when refused."""
+        try:
+            self._check_time(packet.t)
+            if isinstance(packet, GpsFix):
+                self._check_on_map(packet)
+            estimates = self.engine.add(packet)
+            positions = [self._place(e) for e in estimates]
+            if not estimates:
+                self._step_matcher()
+        except Exception as exc:  # noqa: BLE001 (one packet must not fail the batch)
+            self._refuse(result, index, exc)
+            return False
+        result.positions += positions
+        return True
+
+    def _apply_run(self, pending: _Run, result: BatchResult, accepted: list[int]) -> None:
+        """Pending samples through the engine as one run, stopping where an estimate is to
+        be placed or the matcher is due, as the per-packet path places and steps it."""
+        indices, run = pending.take()
+        interval = None if self.matcher is None else self.config.match_interval_s
+        k = 0
+        while k < len(run):
+            try:
+                end, estimates = self.engine.add_run(run, k, self._last_match_t, interval)
+            except Exception as exc:  # noqa: BLE001 (that sample alone is refused)
+                self._refuse(result, indices[k], exc)
+                k += 1
+                continue
+            accepted += indices[k:end - 1]
+            try:
+                positions = [self._place(e) for e in estimates]
+                if not estimates:
+                    self._step_matcher()
+            except Exception as exc:  # noqa: BLE001
+                self._refuse(result, indices[end - 1], exc)
+            else:
+                result.positions += positions
+                accepted.append(indices[end - 1])
+            k = end
+
+    @staticmethod
+    def _refuse(result: BatchResult, index: int, exc: Exception) -> None:
+        """A packet the pipeline raised on: its own reason, or ``unusable`` (a fault)."""
+        if isinstance(exc, PacketError):
+            result.rejections.append(Rejection(index, exc.reason, exc.detail))
+            return
+        log.error("packet %d could not be applied", index, exc_info=exc)
+        result.rejections.append(Rejection(index, RejectReason.UNUSABLE,
+                                           f"{type(exc).__name__}: {exc}"))
+        result.faulted = True
 
     def _check_time(self, t: float) -> None:
         """Refuse a jump far into the future: every later packet would be ``time_backwards``
@@ -518,7 +702,7 @@ class SessionStore:
         if pending is not None and pending.owner == owner:
             self._install(self._load(self._pending.pop(session_id)))
 
-    def ingest(self, session: LiveSession, records: list[Any],
+    def ingest(self, session: LiveSession, records: list[Any] | bulk.Batch,
                client_seq: int | None = None) -> Ingested:
         """Apply a batch and log it as one unit; returns once it is on disk.
 
@@ -543,8 +727,9 @@ class SessionStore:
         reply = batch_reply(result, self.graph.frame)
         try:
             session.last_batch_rowid = self.triplog.append(
-                session.id, session.packets, result.records, len(result.rejections),
-                client_seq, reply if client_seq is not None else None)
+                session.id, session.packets, result.records if result.encoded is None else
+                result.accepted, len(result.rejections), client_seq,
+                reply if client_seq is not None else None, result.encoded)
         except sqlite3.Error:
             log.exception("session %s: trip log write failed; rebuilding from the log",
                           session.id)
@@ -560,7 +745,7 @@ class SessionStore:
         self._checkpoint_if_due(session)
         return Ingested(reply, result)
 
-    def _apply(self, session: LiveSession, records: list[Any]) -> BatchResult:
+    def _apply(self, session: LiveSession, records: list[Any] | bulk.Batch) -> BatchResult:
         """The batch applied to the session's pipeline; after a fault, the pipeline is rebuilt
         from the log and the batch's usable packets applied again."""
         result = session.vehicle.add_records(records, skip_truth=False)
@@ -573,7 +758,7 @@ class SessionStore:
             result = BatchResult(
                 positions=again.positions, accepted=again.accepted, faulted=again.faulted,
                 rejections=sorted(result.rejections + refused, key=lambda r: r.index),
-                records=again.records, indices=[result.indices[i] for i in again.indices])
+                decoded=again.records, indices=[result.indices[i] for i in again.indices])
         return result
 
     def _checkpoint_if_due(self, session: LiveSession) -> None:

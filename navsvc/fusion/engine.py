@@ -6,6 +6,12 @@ strapdown INS (:class:`navsvc.fusion.ins.strapdown.StrapdownFilter`, Giroux et a
 Both take packets in time order and give the same :class:`FusedEstimate` stream; the engine
 puts its reorder window (:mod:`navsvc.fusion.reorder`) in front, so late packets are handled
 alike, and builds the road constraint of map feedback from the matcher's road.
+
+Two ways in: :meth:`FusionEngine.add`, a packet at a time (the reference path, and the only
+one for GPS, the strapdown INS, an uninitialised filter and late packets), and
+:meth:`FusionEngine.add_run`, a run of dead-reckoning samples in one compiled call
+(:mod:`navsvc.fusion.road.batch`) when the road filter is initialised and the run is in time
+order; otherwise it takes the run's first sample through ``add``.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from navsvc.fusion.ins.strapdown import StrapdownFilter, StrapdownOptions
 from navsvc.fusion.kalman import Measurement
 from navsvc.fusion.profiles import FilterKind
 from navsvc.fusion.reorder import ReorderWindow, Replayable, S
+from navsvc.fusion.road.batch import SampleRun, T
 from navsvc.fusion.road.filter import RoadFilter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, Packet
@@ -73,6 +80,22 @@ class FusionEngine:
         the filter's own refusal (the packet then changes nothing).
         """
         return self.window.add(self.filter, packet)
+
+    def add_run(self, run: SampleRun, start: int = 0, last_match_t: float | None = None,
+                match_interval_s: float | None = None) -> tuple[int, list[FusedEstimate]]:
+        """Apply samples ``start..`` of a run as :meth:`add` would one by one, up to the
+        first that emits an estimate or at which a matcher that last stepped at
+        ``last_match_t`` is due again (every ``match_interval_s``; None: no matcher).
+        Returns the index after the last sample taken and the estimates it emitted.
+
+        The batched path when the road filter is initialised and the sample is not older
+        than its state; else the first sample alone through :meth:`add` (which may raise
+        :class:`PacketError` for it)."""
+        f = self.filter
+        if isinstance(f, RoadFilter) and f.state.initialized and f.state.t is not None and \
+                run.rows[start, T] >= f.state.t:
+            return self.window.add_run(f, run, start, True, last_match_t, match_interval_s)
+        return start + 1, self.add(run.packet(start))
 
     def estimate(self) -> FusedEstimate | None:
         """The current estimate, or None before initialisation."""

@@ -13,6 +13,7 @@ from navsvc.api.fleet import Scope, ask_workers, other_workers
 from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
 from navsvc.errors import ConfigError
 from navsvc.session import MAX_CLIENT_SEQ, LiveSession
+from navsvc.wire.bulk import Batch
 from navsvc.wire.positions import position_json
 
 router = APIRouter(prefix="/sessions", tags=["sessions"],
@@ -27,10 +28,11 @@ def session_info(state: AppState, s: LiveSession) -> SessionInfo:
         position=None if position is None else position_json(position, state.graph.frame))
 
 
-def ingest(state: AppState, session: LiveSession, packets: list[Any],
+def ingest(state: AppState, session: LiveSession, packets: list[Any] | Batch,
            client_seq: int | None = None) -> dict[str, Any]:
-    """Apply a batch (API and WebSocket alike), count it, and return its reply, the JSON of
-    a :class:`BatchReply`."""
+    """Apply a batch (API and WebSocket alike; a :class:`Batch` when the WebSocket decoded
+    and validated it whole), count it, and return its reply, the JSON of a
+    :class:`BatchReply`."""
     limit = state.settings.max_batch_packets
     if len(packets) > limit:
         raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
@@ -47,7 +49,8 @@ def ingest(state: AppState, session: LiveSession, packets: list[Any],
         for r in done.result.rejections:
             m.packets_rejected.labels(r.reason.code).inc()
         m.positions.inc(len(done.result.positions))
-        state.viewers.publish(session.id, done.result.records, done.reply)
+        if session.id in state.viewers:  # the records are decoded only for a viewer
+            state.viewers.publish(session.id, done.result.records, done.reply)
     return done.reply
 
 

@@ -31,6 +31,7 @@ from navsvc.api.deps import AppState, accept_session_socket
 from navsvc.api.routes.sessions import ingest
 from navsvc.errors import BatchAlreadyApplied, SessionNotFound
 from navsvc.session import MAX_CLIENT_SEQ
+from navsvc.wire import bulk
 
 router = APIRouter(tags=["sessions"])
 log = logging.getLogger(__name__)
@@ -83,8 +84,15 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
 
 def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
             ) -> dict[str, Any]:
-    """The reply to one WebSocket frame; never raises."""
+    """The reply to one WebSocket frame; never raises. A numbered batch or an array whose
+    packets are all valid is decoded and validated in one call
+    (:func:`navsvc.wire.bulk.decode_message`); any other message, or one with a bad packet,
+    the careful way, which says what is wrong."""
     text = frame.get("text")
+    fast = bulk.decode_message(text if text is not None else frame.get("bytes") or b"",
+                               MAX_CLIENT_SEQ)
+    if fast is not None:
+        return _ingest(state, session_id, owner, fast[1], fast[0])
     if text is None:
         try:
             text = (frame.get("bytes") or b"").decode()
@@ -106,6 +114,11 @@ def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, An
             return _error("malformed", "batch packets must be an array")
     else:
         packets = message if isinstance(message, list) else [message]
+    return _ingest(state, session_id, owner, packets, seq)
+
+
+def _ingest(state: AppState, session_id: str, owner: str, packets: list[Any] | bulk.Batch,
+            seq: int | None) -> dict[str, Any]:
     try:
         session = state.store.get(session_id, owner)  # it may have expired meanwhile
         reply = ingest(state, session, packets, seq)

@@ -27,7 +27,7 @@ from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import gps_problem, gps_sigma_m
 from navsvc.fusion.kalman import Linearised, Measurement
 from navsvc.fusion.profiles import GpsMode
-from navsvc.fusion.road import motion
+from navsvc.fusion.road import batch, motion
 from navsvc.fusion.road.fuzzy import fuzzy_weights
 from navsvc.fusion.road.measurements import (
     CourseAndSpeed,
@@ -202,6 +202,30 @@ class RoadFilter:
             s.last_output_t = packet.t
             return [self._estimate()]
         return []
+
+    def apply_run(self, run: batch.SampleRun, start: int = 0, events: bool = False,
+                  last_match_t: float | None = None, match_interval_s: float | None = None
+                  ) -> tuple[int, list[FusedEstimate]]:
+        """The batched path (:mod:`.batch`): samples ``start..`` of a run (in time order,
+        none older than the state) of an initialised filter, in one compiled call, as
+        ``apply`` would take them one by one. With ``events``, only up to the first sample
+        that emits an estimate, or at which a matcher last stepped at ``last_match_t`` is due
+        again (every ``match_interval_s``). Returns the index after the last sample taken and
+        the estimates that sample emitted."""
+        s = self.state
+        if not s.initialized or s.t is None:  # a replay, after a late fix that restarted it
+            assert not events, "the engine sends runs of an initialised filter only"
+            out = [e for p in run.part(start, len(run)).packets() for e in self.apply(p)]
+            return len(run), out
+        params = self.__dict__.setdefault("_run_params", {})
+        p = params.get(match_interval_s)
+        if p is None:
+            p = params[match_interval_s] = batch.run_params(self.config, self.profile,
+                                                            self.process, match_interval_s)
+        scalars = batch.pack_scalars(s, last_match_t)
+        s.x, s.P, end, why = batch.run_samples(s.x, s.P, scalars, p, run.rows, start, events)
+        batch.unpack_scalars(s, scalars)
+        return end, [self._estimate()] if why == batch.OUTPUT else []
 
     def _propagate_to(self, t: float, gyro_rps: float | None = None) -> None:
         """Predict to ``t``; with a gyro sample, its :class:`GyroRate` update too (one

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
 from navsvc.fusion.kalman import Linearised
 from navsvc.fusion.road.motion import (
@@ -34,6 +33,7 @@ from navsvc.fusion.road.motion import (
     ProcessNoise,
     model_args,
     predict_compiled,
+    symmetrised,
 )
 
 
@@ -107,13 +107,42 @@ def _predict_with_gyro(x: Array, P: Array, dt_s: float, max_step_s: float,
     rate, J = gyro_input(x, yaw_rate_left_rps)
     if not math.isfinite(rate):  # a NaN sample leaves the state as it was
         return x, P
-    A = np.eye(N_STATES)
-    A[HEADING_RATE, :] = J
-    P_new = kalman.matmul(kalman.matmul(A, P), A.T)
+    P_new = _row_replaced(P, HEADING_RATE, J)  # A P Aᵀ
     P_new[HEADING_RATE, HEADING_RATE] += variance / (1.0 + x[GYRO_SCALE]) ** 2
     x_new = x.copy()
     x_new[HEADING_RATE] = rate
-    return x_new, 0.5 * (P_new + P_new.T)
+    return x_new, symmetrised(P_new)
+
+
+@jit
+def _row_replaced(P: Array, r: int, J: Array) -> Array:  # pragma: no cover - compiled
+    """``matmul(matmul(A, P), A.T)`` for ``A`` the identity with row ``r`` replaced by
+    ``J``, bit for bit (the same products in the same order, ``0.0 + 1.0 x p`` where the
+    identity passes an entry through), without forming ``A``: only row and column ``r``
+    change."""
+    n = P.shape[0]
+    C = np.empty((n, n))  # A P
+    for i in range(n):
+        if i != r:
+            for j in range(n):
+                C[i, j] = 0.0 + 1.0 * P[i, j]
+    for j in range(n):
+        acc = 0.0
+        for k in range(n):
+            if J[k] != 0.0:
+                acc += J[k] * P[k, j]
+        C[r, j] = acc
+    D = np.empty((n, n))  # (A P) Aᵀ
+    for i in range(n):
+        for j in range(n):
+            if j != r:
+                D[i, j] = 0.0 + C[i, j] * 1.0
+        acc = 0.0
+        for k in range(n):
+            if J[k] != 0.0:
+                acc += C[i, k] * J[k]
+        D[i, r] = acc
+    return D
 
 
 @dataclass(frozen=True)
