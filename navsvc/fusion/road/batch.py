@@ -43,6 +43,8 @@ from navsvc.fusion.road.measurements import (
     _predict_with_gyro,
 )
 from navsvc.fusion.road.motion import (
+    GPS_BIAS_E,
+    GPS_BIAS_N,
     GPS_LATENCY,
     GYRO_BIAS,
     GYRO_SCALE,
@@ -72,15 +74,16 @@ N_COLUMNS = 9
 
 # RunScalars: the filter's scalar state that a run reads and writes (NaN: None)
 (S_T, S_ACCEL_FWD, S_STILL, S_LAST_DISTANCE, S_WINDOW_T, S_WINDOW_D, S_ODO_SPEED,
- S_LAST_OUTPUT, S_LAST_MATCH) = range(9)
-N_SCALARS = 9
+ S_LAST_OUTPUT, S_LAST_MATCH, S_BIAS_SIGMA) = range(10)  # S_BIAS_SIGMA: read only
+N_SCALARS = 10
 
 # RunParams: the profile's and the configuration's constants
 (P_GYRO, P_ACCEL_SPEED, P_LATERAL, P_ODOMETER, P_STEERING, P_GYRO_VAR, P_ACCEL_VAR,
  P_ODO_VAR, P_STEER_SIGMA, P_WHEELBASE, P_TICKS_PER_M, P_ODO_WINDOW, P_STILL_AFTER,
  P_OUTPUT_INTERVAL, P_ODO_LOW, P_ODO_HIGH, P_GYRO_SCALE_LIMIT, P_MAX_LATENCY, P_MAX_STEP,
- P_TAU, P_MATCH_INTERVAL, P_ZUPT_SPEED_VAR, P_ZUPT_RATE_VAR) = range(23)
-N_PARAMS = 23
+ P_TAU, P_MATCH_INTERVAL, P_ZUPT_SPEED_VAR, P_ZUPT_RATE_VAR, P_STILL_MAX_RATE,
+ P_BIAS_MAX_SIGMAS) = range(25)
+N_PARAMS = 25
 
 DONE, OUTPUT, MATCH = 0, 1, 2  # why run_samples returned
 _NAN = math.nan
@@ -222,7 +225,7 @@ def _sample(x: Array, P: Array, s: Array, p: Array, densities: Array, densities_
             H = np.zeros((1, N_STATES))
             H[0, SPEED] = -x[HEADING_RATE]
             H[0, HEADING_RATE] = -x[SPEED]
-            x, P = _update(x, P, p, np.array([v[ACCEL_LEFT]]),
+            x, P = _update(x, P, p, s, np.array([v[ACCEL_LEFT]]),
                            np.array([-x[SPEED] * x[HEADING_RATE]]), H,
                            np.array([[p[P_ACCEL_VAR]]]))
     elif kind == ODOMETER:
@@ -234,7 +237,7 @@ def _sample(x: Array, P: Array, s: Array, p: Array, densities: Array, densities_
 
 
 @jit
-def _update(x: Array, P: Array, p: Array, z: Array, h: Array, H: Array,
+def _update(x: Array, P: Array, p: Array, s: Array, z: Array, h: Array, H: Array,
             R: Array) -> tuple[Array, Array]:  # pragma: no cover
     """``RoadFilter._update_linearised`` without a gate: the update, then the clamps."""
     x, P, nis = kalman.correct_compiled(x, P, z, h, H, R, math.inf)
@@ -245,6 +248,11 @@ def _update(x: Array, P: Array, p: Array, z: Array, h: Array, H: Array,
     limit = p[P_GYRO_SCALE_LIMIT]
     x[GYRO_SCALE] = min(max(x[GYRO_SCALE], -limit), limit)
     x[GPS_LATENCY] = min(max(x[GPS_LATENCY], 0.0), p[P_MAX_LATENCY])
+    limit = p[P_BIAS_MAX_SIGMAS] * s[S_BIAS_SIGMA]
+    for pos, b in ((X_M, GPS_BIAS_E), (Y_M, GPS_BIAS_N)):
+        bounded = min(max(x[b], -limit), limit)
+        x[pos] += x[b] - bounded
+        x[b] = bounded
     return x, P
 
 
@@ -263,7 +271,7 @@ def _odometer(x: Array, P: Array, s: Array, p: Array, t: float,
         previous = s[S_LAST_DISTANCE]
         s[S_LAST_DISTANCE] = distance
         still = not math.isnan(distance) and distance == previous
-    if still:
+    if still and abs(x[HEADING_RATE]) <= p[P_STILL_MAX_RATE]:
         s[S_STILL] += 1.0
         if s[S_STILL] >= p[P_STILL_AFTER]:
             return _standstill(x, P, p)
@@ -284,7 +292,7 @@ def _odometer(x: Array, P: Array, s: Array, p: Array, t: float,
     H = np.zeros((1, N_STATES))
     H[0, SPEED] = x[ODO_SCALE]
     H[0, ODO_SCALE] = x[SPEED]
-    return _update(x, P, p, np.array([speed]), np.array([x[ODO_SCALE] * x[SPEED]]), H,
+    return _update(x, P, p, s, np.array([speed]), np.array([x[ODO_SCALE] * x[SPEED]]), H,
                    np.array([[p[P_ODO_VAR]]]))
 
 
@@ -298,7 +306,8 @@ def _standstill(x: Array, P: Array, p: Array) -> tuple[Array, Array]:  # pragma:
     R[0, 0], R[1, 1] = p[P_ZUPT_SPEED_VAR], p[P_ZUPT_RATE_VAR]
     PHt = kalman.matmul(P, H.T)
     K = kalman.matmul(PHt, kalman.inverse(kalman.matmul(H, PHt) + R))
-    for i in (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE):  # filter.STANDSTILL_LEAVES
+    for i in (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE, GPS_BIAS_E, GPS_BIAS_N,
+              GPS_LATENCY):  # filter.STANDSTILL_LEAVES
         K[i, 0] = 0.0
         K[i, 1] = 0.0
     y = np.empty(2)
@@ -309,7 +318,8 @@ def _standstill(x: Array, P: Array, p: Array) -> tuple[Array, Array]:  # pragma:
 @jit
 def _steering(x: Array, P: Array, p: Array, angle_left_rad: float
               ) -> tuple[Array, Array]:  # pragma: no cover
-    """``SteeringRate.model`` (bicycle model), then the update."""
+    """``SteeringRate.model`` (bicycle model), then ``kalman.correct_leaving`` of it,
+    leaving ``filter.STEERING_LEAVES``."""
     wheelbase = p[P_WHEELBASE]
     angle = angle_left_rad - x[GYRO_BIAS]
     tan_d, sec2 = math.tan(angle), 1.0 / math.cos(angle) ** 2
@@ -319,7 +329,14 @@ def _steering(x: Array, P: Array, p: Array, angle_left_rad: float
     H[0, HEADING_RATE] = 1.0
     H[0, SPEED] = tan_d / wheelbase
     H[0, GYRO_BIAS] = -x[SPEED] * sec2 / wheelbase
-    return _update(x, P, p, np.array([0.0]), np.array([h]), H, np.array([[sigma ** 2]]))
+    R = np.array([[sigma ** 2]])
+    PHt = kalman.matmul(P, H.T)
+    K = kalman.matmul(PHt, kalman.inverse(kalman.matmul(H, PHt) + R))
+    K[SPEED, 0] = 0.0
+    K[ODO_SCALE, 0] = 0.0
+    y = np.empty(1)
+    y[0] = 0.0 - h
+    return kalman.joseph(x, P, y, H, R, K)
 
 
 def run_params(config: FusionConfig, profile: Profile, process: ProcessNoise,
@@ -350,6 +367,8 @@ def run_params(config: FusionConfig, profile: Profile, process: ProcessNoise,
     p[P_TAU] = _nan(process.turn_rate_tau_s)
     zero = ZeroMotion()
     p[P_ZUPT_SPEED_VAR], p[P_ZUPT_RATE_VAR] = zero.sigma_mps ** 2, zero.sigma_rps ** 2
+    p[P_STILL_MAX_RATE] = config.still_max_turn_rate_rps
+    p[P_BIAS_MAX_SIGMAS] = config.gps_bias_max_sigmas
     p[P_MATCH_INTERVAL] = _nan(match_interval_s)
     p[N_PARAMS:N_PARAMS + N_STATES] = process.densities
     p[N_PARAMS + N_STATES:] = process.densities_with_accel
@@ -365,13 +384,13 @@ def pack_scalars(s: RoadState, last_match_t: float | None) -> Array:
         nan if window is None else window[0], nan if window is None else window[1],
         nan if s.odo_speed_mps is None else s.odo_speed_mps,
         nan if s.last_output_t is None else s.last_output_t,
-        nan if last_match_t is None else last_match_t), dtype=np.float64)
+        nan if last_match_t is None else last_match_t, s.gps_bias_sigma_m), dtype=np.float64)
 
 
 def unpack_scalars(s: RoadState, scalars: Array) -> None:
     """Write the run's scalar state back into the filter's (NaN as None; NaN is the one
     value not equal to itself)."""
-    t, accel, still, distance, window_t, window_d, speed, output, _ = scalars.tolist()
+    t, accel, still, distance, window_t, window_d, speed, output, _, _ = scalars.tolist()
     s.t = t
     s.accel_fwd_mps2 = accel if accel == accel else None
     s.still_samples = int(still)
