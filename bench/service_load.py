@@ -55,7 +55,8 @@ from report import RESULTS, print_table, write_json
 
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from roadgraph import RoadGraph
-from tests.api.server import Server, free_port, start_process, start_server
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # for tests.api.server
+from tests.api.server import Server, free_port, start_process, start_server  # noqa: E402
 
 START_SPREAD_TICKS = 600  # sessions start up to 60 s apart in the drive
 GOLDEN_RATIO = (1.0 + 5.0 ** 0.5) / 2.0  # k x this, mod 1: evenly spread, never repeating
