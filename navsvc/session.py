@@ -27,9 +27,10 @@ from collections.abc import Callable, Generator, Iterable
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from navsvc.errors import (
     BatchAlreadyApplied,
@@ -403,31 +404,78 @@ class VehicleSession:
         self._last_feedback_t = e.t
 
 
-def config_from_options(options: dict[str, Any]) -> SessionConfig:
-    """A session's configuration from the options it was created with (API and trip log).
+class SessionOptions(BaseModel):
+    """What a client chooses when a session starts: the one list of what a session may
+    override (the API's body is this plus the vehicle id; the trip log keeps it as its
+    JSON; ``navsvc run``, ``tune`` and the benches build it from their flags). Everything
+    else is the defaults of :class:`SessionConfig`, or a tuned ``profile``."""
 
-    Keys: ``sensors``, ``fusion`` (GPS mode), ``map_feedback``, the optional vehicle
-    constants ``ticks_per_m``, ``wheelbase_m``, ``gps_uere_m``, and for ``strapdown``
-    ``ins_integration``, ``ins_mechanisation``, ``imu_mounting_rpy_deg``,
-    ``gps_lever_arm_m``. Raises ConfigError.
-    """
-    defaults = FusionConfig()
-    fusion = FusionConfig(
-        sensors=SensorConfig(options.get("sensors", "gyro_odometer")),
-        gps_mode=GpsMode(options.get("fusion", "ekf")),
-        ticks_per_m=float(options.get("ticks_per_m", defaults.ticks_per_m)),
-        wheelbase_m=float(options.get("wheelbase_m", defaults.wheelbase_m)),
-        gps_uere_m=float(options.get("gps_uere_m", defaults.gps_uere_m)))
-    base = StrapdownOptions()
-    strapdown = StrapdownOptions(
-        integration=Integration(options.get("ins_integration", base.integration.value)),
-        mechanisation=Mechanisation(options.get("ins_mechanisation",
-                                                base.mechanisation.value)),
-        mounting_rpy_deg=_triple(options.get("imu_mounting_rpy_deg", base.mounting_rpy_deg)),
-        lever_arm_m=_triple(options.get("gps_lever_arm_m", base.lever_arm_m)))
-    config = SessionConfig(fusion=fusion, strapdown=strapdown,
-                           map_feedback=_optional_bool(options.get("map_feedback")))
-    return apply_profile(config, options.get("profile"))
+    model_config = ConfigDict(extra="forbid")
+
+    sensors: SensorConfig = Field(SensorConfig.GYRO_ODOMETER, description="sensor configuration")
+    fusion: GpsMode = Field(GpsMode.EKF, description="how GPS is fused: ekf, rules or fuzzy")
+    map_feedback: bool | None = Field(
+        None, description="feed confident matches back into the filter as a road constraint "
+        "(bounds drift in GPS outages); default: on wherever the sensor configuration allows "
+        "it (all but strapdown)")
+    ticks_per_m: float | None = Field(None, gt=0, le=10_000,
+                                      description="odometer ticks per metre")
+    wheelbase_m: float | None = Field(None, gt=0.5, le=20, description="for steering sensors")
+    gps_uere_m: float | None = Field(None, gt=0, le=100,
+                                     description="GPS error per unit of HDOP, metres")
+    ins_integration: Integration | None = Field(
+        None, description="strapdown: feedback (default), feedforward or direct "
+                          "(the paper's three EKF integrations)")
+    ins_mechanisation: Mechanisation | None = Field(
+        None, description="strapdown: first_order (default) or rk4")
+    imu_mounting_rpy_deg: tuple[float, float, float] | None = Field(
+        None, description="strapdown: roll, pitch, yaw of the IMU axes in the vehicle, "
+                          "degrees")
+    gps_lever_arm_m: tuple[float, float, float] | None = Field(
+        None, description="strapdown: GPS antenna from the IMU, forward/right/down, metres")
+    profile: dict[str, Any] | None = Field(
+        None, description="tuned parameters (`navsvc tune`): the profile document, or its "
+        "'parameters' object of dotted names to values")
+
+    def config(self) -> SessionConfig:
+        """The session's configuration: these options over the defaults, then the profile.
+        Raises ConfigError."""
+        fusion, ins = FusionConfig(), StrapdownOptions()
+        fusion = FusionConfig(
+            sensors=self.sensors, gps_mode=self.fusion,
+            ticks_per_m=_or(self.ticks_per_m, fusion.ticks_per_m),
+            wheelbase_m=_or(self.wheelbase_m, fusion.wheelbase_m),
+            gps_uere_m=_or(self.gps_uere_m, fusion.gps_uere_m))
+        strapdown = StrapdownOptions(
+            integration=_or(self.ins_integration, ins.integration),
+            mechanisation=_or(self.ins_mechanisation, ins.mechanisation),
+            mounting_rpy_deg=_or(self.imu_mounting_rpy_deg, ins.mounting_rpy_deg),
+            lever_arm_m=_or(self.gps_lever_arm_m, ins.lever_arm_m))
+        config = SessionConfig(fusion=fusion, strapdown=strapdown,
+                               map_feedback=self.map_feedback)
+        return apply_profile(config, self.profile)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The options as JSON values, unset ones left out (what the trip log keeps)."""
+        return self.model_dump(mode="json", exclude_none=True)
+
+
+def config_from_options(options: dict[str, Any]) -> SessionConfig:
+    """A session's configuration from its options as JSON values (:class:`SessionOptions`:
+    the trip log's record, a CLI's flags). Raises ConfigError naming what is wrong."""
+    try:
+        return SessionOptions.model_validate(options).config()
+    except ValidationError as exc:
+        raise ConfigError("; ".join(
+            f"{'.'.join(str(part) for part in e['loc']) or 'options'}: {e['msg']}"
+            for e in exc.errors())) from None
+
+
+T = TypeVar("T")
+
+
+def _or(value: T | None, default: T) -> T:
+    return default if value is None else value
 
 
 def apply_profile(config: SessionConfig, profile: Any) -> SessionConfig:
@@ -490,15 +538,6 @@ def _number(value: Any, kind: type, name: str) -> Any:
         raise ConfigError(f"profile parameter {name!r}: expected a finite "
                           f"{'integer' if kind is int else 'number'}, got {value!r}")
     return kind(value)
-
-
-def _optional_bool(value: Any) -> bool | None:
-    return None if value is None else bool(value)
-
-
-def _triple(values: Any) -> tuple[float, float, float]:
-    x, y, z = (float(v) for v in values)
-    return x, y, z
 
 
 def owner_of(api_key: str | None) -> str:

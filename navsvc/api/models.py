@@ -10,42 +10,21 @@ from typing import Any, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from navsvc.fusion import GpsMode, Integration, Mechanisation, SensorConfig
+from navsvc.session import SessionOptions
 
 
-class SessionCreate(BaseModel):
-    """A vehicle's sensors and how to fuse them."""
-
-    model_config = ConfigDict(extra="forbid")
+class SessionCreate(SessionOptions):
+    """A vehicle's sensors and how to fuse them: :class:`navsvc.session.SessionOptions` and
+    the vehicle's id; the profile may also name one the server was started with."""
 
     vehicle_id: str = Field(min_length=1, max_length=128, examples=["car-17"])
-    sensors: SensorConfig = Field(SensorConfig.GYRO_ODOMETER, description="sensor configuration")
-    fusion: GpsMode = Field(GpsMode.EKF, description="how GPS is fused: ekf, rules or fuzzy")
-    map_feedback: bool | None = Field(
-        None, description="feed confident matches back into the filter as a road constraint "
-        "(bounds drift in GPS outages); default: on wherever the sensor configuration allows "
-        "it (all but strapdown)")
-    ticks_per_m: float | None = Field(None, gt=0, le=10_000,
-                                      description="odometer ticks per metre")
-    wheelbase_m: float | None = Field(None, gt=0.5, le=20, description="for steering sensors")
-    gps_uere_m: float | None = Field(None, gt=0, le=100,
-                                     description="GPS error per unit of HDOP, metres")
-    ins_integration: Integration | None = Field(
-        None, description="strapdown: feedback (default), feedforward or direct "
-                          "(the paper's three EKF integrations)")
-    ins_mechanisation: Mechanisation | None = Field(
-        None, description="strapdown: first_order (default) or rk4")
-    imu_mounting_rpy_deg: tuple[float, float, float] | None = Field(
-        None, description="strapdown: roll, pitch, yaw of the IMU axes in the vehicle, "
-                          "degrees")
-    gps_lever_arm_m: tuple[float, float, float] | None = Field(
-        None, description="strapdown: GPS antenna from the IMU, forward/right/down, metres")
-    profile: dict[str, Any] | str | None = Field(
+    profile: dict[str, Any] | str | None = Field(  # type: ignore[assignment]
         None, description="tuned parameters (`navsvc tune`): a profile inline (the document, "
         "or its 'parameters' object of dotted names to values), or the name of a profile the "
         "server was started with (`navsvc serve --profiles DIR`: the file's stem)")
 
     def options(self) -> dict[str, Any]:
+        """The session's options as the trip log keeps them (a named profile still named)."""
         return self.model_dump(mode="json", exclude={"vehicle_id"}, exclude_none=True)
 
 

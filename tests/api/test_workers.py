@@ -99,13 +99,17 @@ def packets(sample_graph: RoadGraph) -> list[dict]:
 
 
 def one_on_each_worker(client: httpx.Client) -> dict[str, str]:
-    """Create sessions until there is one on each worker: their ids by worker ("w0", "w1")."""
+    """Create sessions until there is one on each worker: their ids by worker ("w0", "w1").
+    HAProxy's health checks may take a few seconds more than the workers to see both up
+    (until then new sessions all go to one): keep trying for 30 s."""
     ids: dict[str, str] = {}
-    for _ in range(16):
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline:
         sid = client.post("/sessions", json={"vehicle_id": "fleet"}).json()["id"]
         ids.setdefault(sid.split("-")[0], sid)
         if len(ids) == 2:
             return ids
+        time.sleep(0.1)
     raise AssertionError(f"sessions landed on one worker only: {ids}")
 
 
