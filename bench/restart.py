@@ -53,6 +53,7 @@ from navsvc.sim.simulate import DriveSpec, simulate_drive
 from navsvc.triplog import TripLog, triplog_path_for
 from navsvc.wire.positions import position_json
 from roadgraph import RoadGraph
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # for tests.api.server
 from tests.api.server import free_port  # noqa: E402
 

@@ -55,6 +55,7 @@ from report import RESULTS, print_table, write_json
 
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from roadgraph import RoadGraph
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # for tests.api.server
 from tests.api.server import Server, free_port, start_process, start_server  # noqa: E402
 

@@ -22,7 +22,7 @@ from roadgraph import RoadGraph
 
 CONFIGS = [s for s in SENSOR_KINDS if s != "all"]
 EXACT = {"gyro_accel", "gyro_two_accels", "gps_only", "strapdown"}  # no standstill update
-# in the batched path (tests/fusion/test_batch.py): there the floats agree to 1e-9
+# in the batched path (tests/fusion/test_batch.py); the others are held to 1e-9
 TOLERANCE = 1e-9
 
 

@@ -148,10 +148,27 @@ def correct_leaving(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
     """The Kalman update with a zero gain for the states ``unchanged`` (a Schmidt, or
     "consider", update: the Joseph form keeps ``P`` right for that gain). For a measurement
     that says nothing of those states although its linearisation seems to."""
-    PHt = P @ H.T
-    K = PHt @ np.linalg.inv(H @ PHt + R)
-    K[list(unchanged), :] = 0.0
-    return joseph(x, P, _f64(z - h), _f64(H), _f64(R), _f64(K))
+    return correct_leaving_compiled(x, P, _f64(z - h), _f64(H), _f64(R), kept_mask(unchanged))
+
+
+def kept_mask(unchanged: tuple[int, ...], n_states: int | None = None) -> Array:
+    """1 for each state an update may change, 0 for those it leaves (``correct_leaving``)."""
+    keep = np.ones(n_states if n_states is not None else max(unchanged) + 1)
+    keep[list(unchanged)] = 0.0
+    return keep
+
+
+@jit
+def correct_leaving_compiled(x: Array, P: Array, y: Array, H: Array, R: Array,
+                             keep: Array) -> tuple[Array, Array]:  # pragma: no cover
+    """:func:`correct_leaving` for compiled callers: innovation ``y``; ``keep`` 0 for the
+    states left as they are (states past its end are changed)."""
+    PHt = matmul(P, H.T)
+    K = matmul(PHt, inverse(matmul(H, PHt) + R))
+    for i in range(len(keep)):
+        if keep[i] == 0.0:
+            K[i, :] = 0.0
+    return joseph(x, P, y, H, R, K)
 
 
 def no_surer_than(P: Array, H: Array, R: Array) -> Array:

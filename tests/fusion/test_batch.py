@@ -1,9 +1,9 @@
 """The road filter's batched path against the per-packet path (fast versus reference).
 
 ``FusionEngine.add_run`` (runs of dead-reckoning samples in one compiled call) must give what
-``FusionEngine.add`` gives a packet at a time: bit for bit, except where the standstill update
-runs (odometer configurations), whose 2x2 inverse and gain come from LAPACK/BLAS in the
-per-packet path and from plain loops in the kernel: there the states agree to ``TOLERANCE``.
+``FusionEngine.add`` gives a packet at a time. Both paths now make the standstill and steering
+updates with the same compiled kernel (they are bit for bit); ``TOLERANCE`` stays for the
+odometer configurations, from when the per-packet standstill update went through LAPACK/BLAS.
 And the sparse covariance products both paths use are the plain ones, bit for bit.
 """
 

@@ -19,11 +19,11 @@ an initialised road filter's samples in time order; the per-packet ``RoadFilter.
 packet of the strapdown INS, and late packets (the reorder window replays them, runs of the
 history again through this path).
 
-Equality with the per-packet path: the same operations in the same order, so bit for bit,
-except the standstill update: ``kalman.correct_leaving`` inverts its 2x2 innovation
-covariance with LAPACK and forms the gain with BLAS (which may fuse multiply-adds), the kernel
-with the closed-form inverse and plain loops; the two differ in the last bits of the gain, and
-the states agree to about 1e-12 relative (``tests/fusion/test_batch.py``).
+Equality with the per-packet path: the same operations in the same order, so bit for bit
+(the standstill and steering updates too: both paths call
+:func:`~navsvc.fusion.kalman.correct_leaving_compiled`, with the states to leave from
+:mod:`.measurements`); ``tests/fusion/test_batch.py`` still allows 1e-9, from when the
+per-packet standstill update went through LAPACK.
 """
 
 from __future__ import annotations
@@ -36,6 +36,8 @@ import numpy as np
 from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
 from navsvc.fusion.road.measurements import (
+    STANDSTILL_LEAVES,
+    STEERING_LEAVES,
     LateralAccel,
     OdometerSpeed,
     SteeringRate,
@@ -86,6 +88,8 @@ N_SCALARS = 10
 N_PARAMS = 25
 
 DONE, OUTPUT, MATCH = 0, 1, 2  # why run_samples returned
+_STANDSTILL_KEEP = kalman.kept_mask(STANDSTILL_LEAVES, N_STATES)  # constants of the kernels
+_STEERING_KEEP = kalman.kept_mask(STEERING_LEAVES, N_STATES)
 _NAN = math.nan
 
 
@@ -304,22 +308,16 @@ def _standstill(x: Array, P: Array, p: Array) -> tuple[Array, Array]:  # pragma:
     H[1, HEADING_RATE] = 1.0
     R = np.zeros((2, 2))
     R[0, 0], R[1, 1] = p[P_ZUPT_SPEED_VAR], p[P_ZUPT_RATE_VAR]
-    PHt = kalman.matmul(P, H.T)
-    K = kalman.matmul(PHt, kalman.inverse(kalman.matmul(H, PHt) + R))
-    for i in (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE, GPS_BIAS_E, GPS_BIAS_N,
-              GPS_LATENCY):  # filter.STANDSTILL_LEAVES
-        K[i, 0] = 0.0
-        K[i, 1] = 0.0
     y = np.empty(2)
     y[0], y[1] = 0.0 - x[SPEED], 0.0 - x[HEADING_RATE]  # z - h, as correct_leaving
-    return kalman.joseph(x, P, y, H, R, K)
+    return kalman.correct_leaving_compiled(x, P, y, H, R, _STANDSTILL_KEEP)
 
 
 @jit
 def _steering(x: Array, P: Array, p: Array, angle_left_rad: float
               ) -> tuple[Array, Array]:  # pragma: no cover
     """``SteeringRate.model`` (bicycle model), then ``kalman.correct_leaving`` of it,
-    leaving ``filter.STEERING_LEAVES``."""
+    leaving ``STEERING_LEAVES``."""
     wheelbase = p[P_WHEELBASE]
     angle = angle_left_rad - x[GYRO_BIAS]
     tan_d, sec2 = math.tan(angle), 1.0 / math.cos(angle) ** 2
@@ -329,14 +327,10 @@ def _steering(x: Array, P: Array, p: Array, angle_left_rad: float
     H[0, HEADING_RATE] = 1.0
     H[0, SPEED] = tan_d / wheelbase
     H[0, GYRO_BIAS] = -x[SPEED] * sec2 / wheelbase
-    R = np.array([[sigma ** 2]])
-    PHt = kalman.matmul(P, H.T)
-    K = kalman.matmul(PHt, kalman.inverse(kalman.matmul(H, PHt) + R))
-    K[SPEED, 0] = 0.0
-    K[ODO_SCALE, 0] = 0.0
     y = np.empty(1)
     y[0] = 0.0 - h
-    return kalman.joseph(x, P, y, H, R, K)
+    return kalman.correct_leaving_compiled(x, P, y, H, np.array([[sigma ** 2]]),
+                                           _STEERING_KEEP)
 
 
 def run_params(config: FusionConfig, profile: Profile, process: ProcessNoise,

@@ -30,6 +30,8 @@ from navsvc.fusion.profiles import GpsMode
 from navsvc.fusion.road import batch, motion
 from navsvc.fusion.road.fuzzy import fuzzy_weights
 from navsvc.fusion.road.measurements import (
+    STANDSTILL_LEAVES,
+    STEERING_LEAVES,
     CourseAndSpeed,
     GpsPosition,
     GpsVelocity,
@@ -72,19 +74,6 @@ from navsvc.types import (
 from roadgraph.geometry import LocalFrame, bearing_rad
 
 MAX_PLAUSIBLE_SPEED_MPS = 70.0
-STANDSTILL_LEAVES = (X_M, Y_M, HEADING, ODO_SCALE, GYRO_SCALE, *GPS_BIAS, GPS_LATENCY)
-# a standstill update tells the gyro bias, not these: the scales are unobservable at rest (the
-# rate's Jacobian by the gyro scale is the gyro noise, which the update read as information);
-# correcting heading and position through their correlation with a bias that drifts moved a
-# car at rest 30 m and 6 degrees after an outage; and a car pulling away slowly through a
-# corner, read as standing, moved the GPS bias states 40 m
-
-
-STEERING_LEAVES = (SPEED, ODO_SCALE)  # the steering angle tells the turn rate at a speed,
-# not the speed: as a measurement of it, slow corners and angle noise pulled the speed (and
-# with it the odometer scale) 3 % off, and the position 6 m behind while the fixes were right
-
-
 @dataclass
 class RoadState:
     """Everything the road filter remembers (plain data)."""
@@ -601,10 +590,11 @@ class RoadFilter:
         leapt away, which dead reckoning cannot do in a second and a non-line-of-sight run
         does. With dead reckoning that holds across a GPS outage too: the gate has already
         allowed for its drift through it (fixes returning 60 m off after an honest 2 m were a
-        non-line-of-sight run the filter followed for 17 s). The run is refused for ``max_jump_s`` at most, and only while the fixes stay
-        near where they leapt to (``jump_spread_m`` or 4 sigma, plus ``jump_drift_mps`` for
-        dead reckoning's own drift): fixes that run away from the estimate faster say the
-        estimate is diverging, not the GPS."""
+        non-line-of-sight run the filter followed for 17 s). The run is refused for
+        ``max_jump_s`` at most, and only while the fixes stay near where they leapt to
+        (``jump_spread_m`` or 4 sigma, plus ``jump_drift_mps`` for dead reckoning's own
+        drift): fixes that run away from the estimate faster say the estimate is diverging,
+        not the GPS."""
         s, cfg = self.state, self.config
         if not math.isfinite(nis):
             return False
