@@ -175,7 +175,8 @@ class VehicleSession:
             raise ConfigError(f"map feedback is not available with "
                               f"{config.fusion.sensors.value} yet")
         self.engine = FusionEngine(config.fusion, frame=graph.frame if graph else None,
-                                   ins=config.strapdown)
+                                   ins=config.strapdown,
+                                   road_distance=graph.distance_to_road_m if graph else None)
         self.matcher = OnlineMatcher(graph, config.matcher) if graph is not None else None
         self.last_position: MatchedPosition | None = None
         self._last_match_t: float | None = None

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import heapq
+import math
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NamedTuple, TypeVar, overload
@@ -196,6 +197,18 @@ class RoadGraph:
             raise RoadGraphError(f"no edge near ({x_m}, {y_m}): the graph is empty or the point "
                                  "is outside what the map's projection can hold")
         return found[0]
+
+    def distance_to_road_m(self, x_m: float, y_m: float, heading_rad: float,
+                           radius_m: float, max_bearing_diff_rad: float) -> float:
+        """Distance from the point to the nearest road running along ``heading_rad`` (either
+        way, within ``max_bearing_diff_rad``); ``radius_m`` when none is that near. How well
+        a position and heading fit the map (the fusion's test of two GPS tracks)."""
+        near = self._grid.near(x_m, y_m, radius_m)
+        for distance, _offset, _x, _y, bearing in near.closest:  # nearest first
+            diff = abs(math.remainder(bearing - heading_rad, math.pi))
+            if diff <= max_bearing_diff_rad:
+                return min(distance, radius_m)
+        return radius_m
 
     def _projections(self, near: NearPolylines) -> list[EdgeProjection]:
         length = self._a.edge_length_m

@@ -56,6 +56,13 @@ class FusionConfig:
     # sigma) ...
     jump_drift_mps: float = 3.0  # ... plus this much a second: fixes running away from the
     # estimate faster mean the estimate is diverging (a heading gone wrong), not the GPS
+    jump_map_after_s: float = 3.0  # ekf with a map: a refused jump is tested against the
+    # roads after this long (two tracks: the estimate's and the jumped fixes')
+    jump_map_track_off_m: float = 12.0  # ... the jump is followed when the estimate's track
+    # lies this far (rms) from any road along its heading ...
+    jump_map_ratio: float = 2.0  # ... and this many times farther than the fixes' track
+    road_fit_radius_m: float = 30.0  # roads farther than this count as this far
+    road_fit_max_bearing_rad: float = math.radians(30.0)  # a road along the heading
     reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS
     inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it

@@ -26,7 +26,7 @@ from navsvc.fusion.kalman import Measurement
 from navsvc.fusion.profiles import FilterKind
 from navsvc.fusion.reorder import ReorderWindow, Replayable, S
 from navsvc.fusion.road.batch import SampleRun, T
-from navsvc.fusion.road.filter import RoadFilter
+from navsvc.fusion.road.filter import RoadDistance, RoadFilter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, Packet
 from roadgraph.geometry import LocalFrame
@@ -55,11 +55,14 @@ class FusionEngine:
 
     def __init__(self, config: FusionConfig = DEFAULT_CONFIG,
                  frame: LocalFrame | None = None,
-                 ins: StrapdownOptions = DEFAULT_INS) -> None:
+                 ins: StrapdownOptions = DEFAULT_INS,
+                 road_distance: RoadDistance | None = None) -> None:
+        """``road_distance``: the map's fit of a position (in ``frame``), with which the road
+        filter tells which of two GPS tracks lies on the roads."""
         self.config = config
         self.profile = config.profile
         road = self.profile.filter == FilterKind.ROAD
-        self.filter: Filter[Any] = RoadFilter(config, frame) if road \
+        self.filter: Filter[Any] = RoadFilter(config, frame, road_distance) if road \
             else StrapdownFilter(config, frame, ins)
         self.window: ReorderWindow[Any] = ReorderWindow(config.reorder_window_s)
 

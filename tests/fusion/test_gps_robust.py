@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from navsvc.fusion import FusionConfig, GpsMode
-from navsvc.fusion.road.filter import RoadFilter
+from navsvc.fusion.road.filter import RoadDistance, RoadFilter
 from navsvc.fusion.road.motion import (
     GPS_BIAS_E,
     GPS_BIAS_N,
@@ -48,9 +48,17 @@ def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
     return packets
 
 
-def _run(packets: list[Packet]) -> tuple[RoadFilter, list[tuple[float, float, str]]]:
+def _north_road_distance(x_m: float, y_m: float, heading_rad: float, radius_m: float,
+                         max_bearing_diff_rad: float) -> float:
+    """The map of the drive: one road, north-south through the origin."""
+    along = abs(math.remainder(heading_rad, math.pi)) <= max_bearing_diff_rad
+    return min(abs(x_m), radius_m) if along else radius_m
+
+
+def _run(packets: list[Packet], road_distance: RoadDistance | None = None
+         ) -> tuple[RoadFilter, list[tuple[float, float, str]]]:
     """The filter after the drive, and (t, error m, GPS reason) at every fix."""
-    road = RoadFilter(FusionConfig(), FRAME)
+    road = RoadFilter(FusionConfig(), FRAME, road_distance)
     out = []
     for p in packets:
         for e in road.apply(p):
@@ -74,6 +82,31 @@ def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:
     assert all(err < 3.0 for _, err, _ in after), after
     used = [reason in ("accepted", "down-weighted") for _, _, reason in after]
     assert used[:5] == [True] * 5 and sum(used) >= 0.9 * len(used), after
+
+
+def test_with_the_map_a_jump_off_the_roads_is_still_refused() -> None:
+    _, fixes = _run(_drive(120.0, [(60.0, 90.0, 50.0)]), _north_road_distance)
+    during = [f for f in fixes if 60.0 <= f[0] < 90.0]
+    assert all(err < 10.0 and reason.startswith("refused: jumped")
+               for _, err, reason in during), during
+
+
+def test_a_start_inside_a_non_line_of_sight_run_is_left_when_the_map_says_so() -> None:
+    """The drive starts with its fixes 50 m off the road and the filter settles on them;
+    when the true fixes come back, they are a "jump" from the settled track. Without a map it
+    is refused for a minute; with one, the jumped fixes lie on the road and the track off it,
+    and the filter takes them within a few seconds."""
+    packets = _drive(120.0, [(0.0, 40.0, 50.0)])
+    _, blind = _run(packets)
+    assert all(reason.startswith("refused: jumped") for t, _, reason in blind
+               if 41.0 <= t < 60.0)
+    _, fixes = _run(packets, _north_road_distance)
+    assert all(err > 40.0 for t, err, _ in fixes if 20.0 <= t < 40.0)
+    back = [f for f in fixes if f[0] >= 40.0]
+    assert back[0][2].startswith("refused: jumped")
+    taken = next(i for i, f in enumerate(back) if not f[2].startswith("refused"))
+    assert taken <= 5 and back[taken][2] == "re-acquired: the fixes lie on a road, the track off it"
+    assert all(err < 3.0 for _, err, _ in back[taken:]), back
 
 
 def test_fixes_back_from_an_outage_far_off_are_a_jump_when_dead_reckoning_is_sure() -> None:

@@ -64,6 +64,18 @@ def test_edges_near_on_hand_built_graph() -> None:
     assert g.nearest_edge(x0 + 50, y0 + 30).distance_m == pytest.approx(30.0)
 
 
+def test_distance_to_road_along_a_heading() -> None:
+    """The nearest road running along the heading (either way); the radius when none is."""
+    g = cross_graph()
+    x0, y0 = FRAME.to_local(7.42, 43.73)
+    east, north, fit = math.pi / 2, 0.0, math.radians(30.0)
+    assert g.distance_to_road_m(x0 + 50, y0 + 3, east, 30.0, fit) == pytest.approx(3.0)
+    assert g.distance_to_road_m(x0 + 50, y0 + 3, -east, 30.0, fit) == pytest.approx(3.0)
+    # the east arm is 3 m away but runs across a northbound heading; the north arm is 50 m
+    assert g.distance_to_road_m(x0 + 50, y0 + 3, north, 30.0, fit) == 30.0
+    assert g.distance_to_road_m(x0 + 20, y0 + 60, north, 30.0, fit) == pytest.approx(20.0)
+
+
 def test_shortest_path() -> None:
     g = cross_graph()
     assert g.shortest_path(4, 2) == [EdgeKey(4, 0, 0), EdgeKey(0, 2, 0)]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 
@@ -100,6 +101,9 @@ class RoadState:
     last_accepted_t: float | None = None  # the latest fix the gate let through
     jump_since_t: float | None = None  # a run of fixes that jumped away from the track
     jump_offset_m: tuple[float, float] = (0.0, 0.0)  # ... the first one's innovation
+    jump_fit: tuple[int, float, float, float, float] = (0, 0.0, 0.0, 0.0, 0.0)  # ... its
+    # fixes, sum of their innovations (east, north), sums of squared distances to the roads
+    # of the estimate's track and of the jumped one
     gated_offset_m: tuple[float, float] | None = None  # where the refused run's first fix lay
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
@@ -114,13 +118,24 @@ class RoadState:
     gps: GpsUsage | None = None
 
 
-class RoadFilter:
-    """The 8-state EKF of one road vehicle: ``apply`` packets in time order."""
+class RoadDistance(Protocol):
+    """How far a position is from the nearest road along a heading (the map's fit,
+    :meth:`roadgraph.RoadGraph.distance_to_road_m`)."""
 
-    def __init__(self, config: FusionConfig, frame: LocalFrame | None = None) -> None:
+    def __call__(self, x_m: float, y_m: float, heading_rad: float, radius_m: float,
+                 max_bearing_diff_rad: float) -> float: ...
+
+
+class RoadFilter:
+    """The 8-state EKF of one road vehicle: ``apply`` packets in time order. With
+    ``road_distance`` (the map) it can tell which of two GPS tracks lies on the roads."""
+
+    def __init__(self, config: FusionConfig, frame: LocalFrame | None = None,
+                 road_distance: RoadDistance | None = None) -> None:
         self.config = config
         self.profile = config.profile
         self.frame = frame
+        self.road_distance = road_distance
         self.state = RoadState()
         self._gyro = self.profile.gyro  # read at every IMU sample
         tau = self.profile.turn_rate_tau_s
@@ -516,15 +531,14 @@ class RoadFilter:
             if self._jumps_back(fix.t, y, sigma):
                 # the bias states took up part of the jump the filter followed: that was the
                 # jump's error, not a slowly changing one (left there, it kept the estimate
-                # 25 m off for a minute); the position goes where this fix puts it
-                lag, v = s.x[GPS_LATENCY], s.x[SPEED]
-                self._reset_position(z[0] + lag * v * math.sin(s.x[HEADING]),
-                                     z[1] + lag * v * math.cos(s.x[HEADING]),
-                                     self._sigma_m(fix), fix.t)
-                self._tracking(fix.t)
-                s.gps = GpsUsage(True, 1.0, "re-acquired: the fixes jumped back", nis=nis)
+                # 25 m off for a minute)
+                self._follow_jump(fix, z, "re-acquired: the fixes jumped back", nis)
                 return
             if self._jumped(fix.t, nis, y, sigma):
+                if self._map_prefers_jump(fix.t, y):
+                    self._follow_jump(fix, z, "re-acquired: the fixes lie on a road, the "
+                                      "track off it", nis)
+                    return
                 s.gps = GpsUsage(False, 0.0, f"refused: jumped {math.hypot(*y):.0f} m away "
                                  "from the track (non-line-of-sight?)", nis=nis)
                 return
@@ -546,6 +560,42 @@ class RoadFilter:
             self._update(ZeroMotion(sigma_mps=0.3, sigma_rps=0.05))
         s.gps = GpsUsage(True, weight, "accepted" if weight == 1.0 else "down-weighted",
                          nis=nis)
+
+    def _follow_jump(self, fix: GpsFix, z: Array, reason: str, nis: float) -> None:
+        """The position goes where the fix puts it (undoing the latency), the GPS bias
+        states to zero: a jump is followed at once, not pulled toward through the speed,
+        scale and bias states (which then hold the jump's error for minutes)."""
+        s = self.state
+        lag, v = s.x[GPS_LATENCY], s.x[SPEED]
+        self._reset_position(z[0] + lag * v * math.sin(s.x[HEADING]),
+                             z[1] + lag * v * math.cos(s.x[HEADING]),
+                             self._sigma_m(fix), fix.t)
+        s.followed_jump = None
+        self._tracking(fix.t)
+        s.gps = GpsUsage(True, 1.0, reason, nis=nis)
+
+    def _map_prefers_jump(self, t: float, innovation: Array) -> bool:
+        """Two tracks, tested against the map while a jump is refused: the estimate's and
+        the jumped fixes' (the estimate moved by the run's mean innovation). A start inside a
+        non-line-of-sight run settles on fixes off the roads; when the true fixes return,
+        they are the "jump". Followed once, after ``jump_map_after_s``, when the estimate's
+        track lies ``jump_map_track_off_m`` (rms) from any road along its heading and
+        ``jump_map_ratio`` times farther than the jumped one."""
+        s, cfg = self.state, self.config
+        if self.road_distance is None or s.jump_since_t is None:
+            return False
+        n, sum_e, sum_n, track_sq, jump_sq = s.jump_fit
+        n, sum_e, sum_n = n + 1, sum_e + float(innovation[0]), sum_n + float(innovation[1])
+        x, y, heading = float(s.x[X_M]), float(s.x[Y_M]), float(s.x[HEADING])
+        args = (heading, cfg.road_fit_radius_m, cfg.road_fit_max_bearing_rad)
+        track_sq += self.road_distance(x, y, *args) ** 2
+        jump_sq += self.road_distance(x + sum_e / n, y + sum_n / n, *args) ** 2
+        s.jump_fit = (n, sum_e, sum_n, track_sq, jump_sq)
+        if n < 3 or t - s.jump_since_t < cfg.jump_map_after_s:
+            return False
+        track_rms, jump_rms = math.sqrt(track_sq / n), math.sqrt(jump_sq / n)
+        return track_rms >= cfg.jump_map_track_off_m and \
+            track_rms >= cfg.jump_map_ratio * jump_rms
 
     def _split_sigma(self, sigma_m: float) -> tuple[float, float]:
         """A fix's sigma as (the part new at each fix, the slowly changing part)."""
@@ -615,6 +665,7 @@ class RoadFilter:
             return False
         s.jump_since_t = t
         s.jump_offset_m = (float(innovation[0]), float(innovation[1]))
+        s.jump_fit = (0, 0.0, 0.0, 0.0, 0.0)
         return True
 
     def _gps_sigma_learnt(self, fix: GpsFix) -> float:
