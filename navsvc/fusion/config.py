@@ -61,6 +61,9 @@ class FusionConfig:
     jump_map_track_off_m: float = 12.0  # ... the jump is followed when the estimate's track
     # lies this far (rms) from any road along its heading ...
     jump_map_ratio: float = 2.0  # ... and this many times farther than the fixes' track
+    gps_map_memory_s: float = 60.0  # ekf with a map: the fixes' distance from the roads is
+    # learnt over this long (it measures their slowly changing error, which the NIS cannot)
+    gps_map_max_sigma_m: float = 10.0  # ... a floor of at most this
     road_fit_radius_m: float = 30.0  # roads farther than this count as this far
     road_fit_max_bearing_rad: float = math.radians(30.0)  # a road along the heading
     reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS

@@ -109,6 +109,23 @@ def test_a_start_inside_a_non_line_of_sight_run_is_left_when_the_map_says_so() -
     assert all(err < 3.0 for _, err, _ in back[taken:]), back
 
 
+def test_the_map_makes_the_reported_sigma_hold_an_error_the_fixes_share() -> None:
+    """Fixes 8 m east of the road all drive long, with a sigma of 1 m: their NIS cannot see
+    an error the estimate shares, the road can, and the reported sigma takes it."""
+    def sigmas(road_distance: RoadDistance | None) -> list[tuple[float, float]]:
+        road = RoadFilter(FusionConfig(), FRAME, road_distance)
+        out = []
+        for p in _drive(120.0, [(0.0, 120.0, 8.0)]):
+            for e in road.apply(p):
+                if isinstance(p, GpsFix) and p.t >= 60.0:
+                    out.append((math.hypot(e.x_m, e.y_m - _north_m(p.t)), e.position_sigma_m))
+        return out
+
+    blind, seen = sigmas(None), sigmas(_north_road_distance)
+    assert all(err > 6.0 and err > 2.45 * sigma for err, sigma in blind)
+    assert all(err <= 2.45 * sigma <= 2.45 * 12.0 for err, sigma in seen), seen
+
+
 def test_fixes_back_from_an_outage_far_off_are_a_jump_when_dead_reckoning_is_sure() -> None:
     """Dead reckoning through a 20 s gap stays within metres; fixes that come back 50 m off
     it are refused as a jump (a non-line-of-sight run), and taken when they are right again."""

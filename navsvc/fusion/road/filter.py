@@ -108,6 +108,10 @@ class RoadState:
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
+    gps_map_sq_mean: tuple[float, float] = (0.0, 0.0)  # (seconds learnt, running mean of the
+    # squared distance of the fixes from the roads along the heading)
+    gps_unseen_var_m2: float = 0.0  # of that, what the fixes' sigma does not hold: an error
+    # the estimate shares with the fixes, reported in its covariance (not filtered on)
     gps_bias_t: float | None = None  # time of the GPS bias states
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
@@ -520,7 +524,10 @@ class RoadFilter:
           make the position look surer than it is; the rest is new at each fix."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        white, s.gps_bias_sigma_m = self._split_sigma(self._gps_sigma_learnt(fix))
+        self._learn_gps_error_from_map(east, north, min(dt_s, 1.0))
+        sigma_learnt = self._gps_sigma_learnt(fix)
+        s.gps_unseen_var_m2 = self._unseen_gps_var_m2(sigma_learnt)
+        white, s.gps_bias_sigma_m = self._split_sigma(sigma_learnt)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
         sigma = white * math.sqrt(fixes_per_s)
@@ -673,6 +680,37 @@ class RoadFilter:
         adaptation: 2 is the mean when the sigmas are right)."""
         return self._sigma_m(fix) * math.sqrt(max(1.0, self.state.gps_nis_mean / 2.0))
 
+    def _unseen_gps_var_m2(self, sigma_m: float) -> float:
+        """How much more variance the fixes' error has, by their distance from the roads
+        (:meth:`_learn_gps_error_from_map`, at most ``gps_map_max_sigma_m``), than the
+        sigma the filter weighs them by; zero until learnt over half its memory."""
+        learnt_s, map_sq = self.state.gps_map_sq_mean
+        if learnt_s < self.config.gps_map_memory_s / 2.0:
+            return 0.0
+        return max(min(map_sq, self.config.gps_map_max_sigma_m ** 2) - sigma_m ** 2, 0.0)
+
+    def _learn_gps_error_from_map(self, east: float, north: float, dt_s: float) -> None:
+        """The fixes' slowly changing error moves the estimate with them, so their NIS does
+        not see it; the map does: a fix's distance from the road the car drives along is
+        its error across that road. Its running mean square (over ``gps_map_memory_s``,
+        winsorised at 3 rms) measures how far off the fixes are. While moving, and on an
+        initialised filter.
+
+        Only the reported covariance takes it (``gps_unseen_var_m2``, at most
+        ``gps_map_max_sigma_m``): as a floor under the sigma the filter weighs the fixes by,
+        the bias states took up offsets of 30 m and the estimate stayed there on good
+        fixes (tune split: two drives from 0.2-0.5x raw GPS to 1-1.5x)."""
+        s, cfg = self.state, self.config
+        if self.road_distance is None or not s.initialized or s.x[SPEED] < 1.0:
+            return
+        d = self.road_distance(east, north, float(s.x[HEADING]), cfg.road_fit_radius_m,
+                               cfg.road_fit_max_bearing_rad)
+        learnt_s, mean = s.gps_map_sq_mean
+        if learnt_s > 0.0:  # winsorised: a non-line-of-sight run is the jump test's
+            d = min(d, 3.0 * math.sqrt(max(mean, 1.0)))
+        learnt_s = min(learnt_s + dt_s, cfg.gps_map_memory_s)
+        s.gps_map_sq_mean = (learnt_s, mean + (d * d - mean) * dt_s / learnt_s)
+
     def _refused_fix(self, fix: GpsFix, east: float, north: float, m: Linearised,
                      nis: float, dt_s: float) -> None:
         s, cfg = self.state, self.config
@@ -813,9 +851,10 @@ class RoadFilter:
             t=float(s.t or 0.0), x_m=float(s.x[X_M]), y_m=float(s.x[Y_M]),
             heading_rad=float(s.x[HEADING] % (2.0 * math.pi)), speed_mps=float(s.x[SPEED]),
             yaw_rate_rps=float(s.x[HEADING_RATE]),
-            position_cov_m2=s.P[:2, :2].copy(),
+            position_cov_m2=s.P[:2, :2] + s.gps_unseen_var_m2 * np.eye(2),
             heading_sigma_rad=float(math.sqrt(max(s.P[HEADING, HEADING], 0.0))),
-            initialized=s.initialized, gps=s.gps, gps_bias_var_m2=self._bias_share_m2(),
+            initialized=s.initialized, gps=s.gps,
+            gps_bias_var_m2=self._bias_share_m2() + s.gps_unseen_var_m2,
         )
 
 
