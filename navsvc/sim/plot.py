@@ -34,11 +34,11 @@ def plot_run(drive: list[dict[str, Any]], estimates: list[dict[str, Any]], path:
     truth = [r for r in drive if r.get("kind") == "truth"]
     gps = [r for r in drive if r.get("kind") == "gps"]
     fused_records = [r for r in estimates if r.get("fused_lat") is not None]
-    first = (truth or gps or fused_records or [None])[0]
+    first = next(iter(truth or gps or fused_records), None)
     if first is None:
         raise NavsvcError("nothing to plot: no truth, GPS or positions")
-    lon, lat = ("fused_lon", "fused_lat") if first is not None and "fused_lat" in first and \
-        "lat" not in first else ("lon", "lat")
+    lon, lat = ("fused_lon", "fused_lat") if "fused_lat" in first and "lat" not in first \
+        else ("lon", "lat")
     frame = graph.frame if graph is not None else LocalFrame.for_point(first[lon], first[lat])
     truth_xy, gps_xy = _xy(truth, frame), _xy(gps, frame)
     fused = _xy(fused_records, frame, "fused_lat", "fused_lon")
@@ -59,9 +59,9 @@ def plot_run(drive: list[dict[str, Any]], estimates: list[dict[str, Any]], path:
         f = fused - origin
         ax.plot(f[:, 0], f[:, 1], color="tab:blue", linewidth=1.0, label="fused", zorder=4)
         _mark_outages(ax, gps, fused_records, f)
-        ax.scatter(*f[0], marker="o", s=80, color="white", edgecolor="black", zorder=7,
+        ax.scatter(f[0, 0], f[0, 1], marker="o", s=80, color="white", edgecolor="black", zorder=7,
                    label="start")
-        ax.scatter(*f[-1], marker="s", s=80, color="black", zorder=7, label="end")
+        ax.scatter(f[-1, 0], f[-1, 1], marker="s", s=80, color="black", zorder=7, label="end")
     matched = [r for r in estimates if r.get("edge")]
     if matched:
         m = _xy(matched, frame) - origin
