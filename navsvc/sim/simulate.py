@@ -113,6 +113,8 @@ class DriveSpec:
     stop_probability: float = 0.2  # at each intersection
     stop_duration_s: tuple[float, float] = (3.0, 15.0)
     max_lateral_accel_mps2: float = 2.0
+    corner_half_width_m: float = 6.0  # corners are rounded over this much road each side
+    # (a 90-degree corner then has about 5 m of radius at its tightest)
     max_accel_mps2: float = 1.5
     max_decel_mps2: float = 2.5
     wheelbase_m: float = 2.7
@@ -221,6 +223,21 @@ def _resample(xy: FloatArray, owner: npt.NDArray[np.int64],
     return np.column_stack([x, y]), owner[seg].tolist()
 
 
+def _round_corners(xy: FloatArray, half_width_m: float, spacing_m: float) -> FloatArray:
+    """A moving average of the evenly spaced vertices over ``half_width_m`` each side (end
+    points kept): a corner becomes a curve a car can drive. Corner cutting alone, on 2 m
+    vertices, turned 90 degrees in 1 m of radius, which asked for 70 degrees of steering
+    at the wheels (cars have 35-40) and gyro rates of 85 degrees a second at walking pace."""
+    k = int(round(half_width_m / spacing_m))
+    if k < 1 or len(xy) < 2 * k + 1:
+        return xy
+    padded = np.vstack([np.repeat(xy[:1], k, axis=0), xy, np.repeat(xy[-1:], k, axis=0)])
+    kernel = np.ones(2 * k + 1) / (2 * k + 1)
+    out = np.column_stack([np.convolve(padded[:, i], kernel, mode="valid") for i in (0, 1)])
+    out[0], out[-1] = xy[0], xy[-1]
+    return out
+
+
 def _remove_spikes(xy: FloatArray, owner: list[int],
                    max_turn_rad: float = math.radians(100.0)) -> tuple[FloatArray, list[int]]:
     """Drop vertices where the line doubles back within one vertex spacing.
@@ -252,6 +269,7 @@ def _build_path(graph: RoadGraph, route: list[EdgeKey], spec: DriveSpec,
     xy = np.vstack(pts)
     xy, owner = _resample(xy, np.array(owner), spacing_m=2.0)
     xy, owner = _remove_spikes(xy, owner)
+    xy = _round_corners(xy, spec.corner_half_width_m, spacing_m=2.0)
     xy, owner = _chaikin(xy, owner)
     seg = np.diff(xy, axis=0)
     seg_len = np.hypot(seg[:, 0], seg[:, 1])

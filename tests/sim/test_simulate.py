@@ -18,7 +18,8 @@ from roadgraph import RoadGraph
 
 PINNED = Path(__file__).resolve().parent / "data" / "default_drives.json"
 PINNED_SPECS = {  # as pinned on 2026-12-01, before the harsh-urban options existed (the
-    # steering records re-pinned on 2026-12-02, when slow corners got their steering angle)
+    # steering records re-pinned on 2026-12-02, when slow corners got their steering angle,
+    # and every record on 2026-12-02 again, when corners got a radius a car can drive)
     "all_sensors": DriveSpec(duration_s=40.0, seed=7, outages=((15.0, 6.0),)),
     "strapdown": DriveSpec(duration_s=20.0, seed=11, full_imu=True,
                            sensors=("imu", "odometer", "gps")),
