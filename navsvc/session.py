@@ -53,7 +53,7 @@ from navsvc.fusion import (
 from navsvc.fusion.road.batch import IMU, N_COLUMNS, ODOMETER, STEERING, SampleRun
 from navsvc.fusion.road.filter import RoadFilter
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
-from navsvc.triplog import Checkpoint, LoggedSession, TripLog
+from navsvc.triplog import Checkpoint, CommitGroup, LoggedSession, TripLog
 from navsvc.types import (
     FusedEstimate,
     GpsFix,
@@ -668,6 +668,7 @@ class Ingested:
 
     reply: dict[str, Any]
     result: BatchResult | None
+    group: CommitGroup | None = None  # with ``defer_commit``: the reply waits for its commit
 
 
 class SessionStore:
@@ -693,6 +694,8 @@ class SessionStore:
         # the one being rebuilt in the background, a step at a time
         self._rebuilding: dict[str, tuple[LoggedSession, Generator[None, None, LiveSession]]] \
             = {}
+        self._group: CommitGroup | None = None  # the trip log's open group, as last seen
+        self._uncommitted: dict[str, LiveSession] = {}  # sessions with batches in it
 
     def __len__(self) -> int:
         return len(self._sessions) + len(self._pending) + len(self._rebuilding)
@@ -742,8 +745,14 @@ class SessionStore:
             self._install(self._load(self._pending.pop(session_id)))
 
     def ingest(self, session: LiveSession, records: list[Any] | bulk.Batch,
-               client_seq: int | None = None) -> Ingested:
+               client_seq: int | None = None, defer_commit: bool = False) -> Ingested:
         """Apply a batch and log it as one unit; returns once it is on disk.
+
+        ``defer_commit``: the batch joins the trip log's open :class:`CommitGroup` instead,
+        returned as ``Ingested.group``; the reply must wait for that group's commit
+        (:meth:`TripLog.commit`). If the group is lost (the commit fails), every session with
+        a batch in it is rebuilt from the log, as below, and the group's waiters learn the
+        error: none of its batches was acknowledged.
 
         ``client_seq``, the client's number for the batch (increasing per session), makes a
         resend safe: a batch numbered at or below the last one is not applied again but
@@ -761,14 +770,17 @@ class SessionStore:
                     f"batch {client_seq} is not after the session's last numbered batch "
                     f"({last}): either it was applied already and its reply is no longer kept "
                     f"(the last {REPLIES_KEPT} are), or the numbers went backwards")
-            return Ingested({**kept, "duplicate": True}, None)
+            # answered once the batch it repeats is committed, if it is not yet
+            return Ingested({**kept, "duplicate": True}, None,
+                            self._group if session.id in self._uncommitted else None)
         result = self._apply(session, records)
         reply = batch_reply(result, self.graph.frame)
         try:
             session.last_batch_rowid = self.triplog.append(
                 session.id, session.packets, result.records if result.encoded is None else
                 result.accepted, len(result.rejections), client_seq,
-                reply if client_seq is not None else None, result.encoded)
+                reply if client_seq is not None else None, result.encoded,
+                not defer_commit)  # commit
         except sqlite3.Error:
             log.exception("session %s: trip log write failed; rebuilding from the log",
                           session.id)
@@ -781,8 +793,32 @@ class SessionStore:
             session.replies[client_seq] = reply
             if len(session.replies) > REPLIES_KEPT:
                 session.replies.popitem(last=False)
-        self._checkpoint_if_due(session)
-        return Ingested(reply, result)
+        group = self.triplog.group if defer_commit else None
+        if group is not None:
+            self._watch(group, session)
+        self._checkpoint_if_due(session)  # in the group too, when there is one
+        return Ingested(reply, result, group)
+
+    def _watch(self, group: CommitGroup, session: LiveSession) -> None:
+        """Note that ``session`` has a batch in ``group``, to rebuild it should the group be
+        lost."""
+        if group is not self._group:
+            self._group, self._uncommitted = group, {}
+            sessions = self._uncommitted
+            group.when_done(lambda error: self._group_done(sessions, error))
+        self._uncommitted[session.id] = session
+
+    def _group_done(self, sessions: dict[str, LiveSession], error: BaseException | None
+                    ) -> None:
+        """A commit group's end. When it was rolled back, rebuild its sessions from the log,
+        so that memory never holds packets the log lacks."""
+        for session_id, session in sessions.items() if error is not None else ():
+            if session_id in self._sessions:
+                log.error("session %s: trip log commit failed; rebuilding from the log",
+                          session_id)
+                self._sessions[session_id] = self._load(session.logged())
+        if sessions is self._uncommitted:
+            self._group, self._uncommitted = None, {}
 
     def _apply(self, session: LiveSession, records: list[Any] | bulk.Batch) -> BatchResult:
         """The batch applied to the session's pipeline; after a fault, the pipeline is rebuilt

@@ -74,7 +74,7 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
                 break
-            replies.put(_answer(state, session_id, owner, message))
+            replies.put(await _answer(state, session_id, owner, message))
             await asyncio.sleep(0)  # let the sender run between messages
     except WebSocketDisconnect:
         pass
@@ -82,8 +82,8 @@ async def stream(websocket: WebSocket, session_id: str) -> None:
         sender.cancel()
 
 
-def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
-            ) -> dict[str, Any]:
+async def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
+                  ) -> dict[str, Any]:
     """The reply to one WebSocket frame; never raises. A numbered batch or an array whose
     packets are all valid is decoded and validated in one call
     (:func:`navsvc.wire.bulk.decode_message`); any other message, or one with a bad packet,
@@ -92,7 +92,7 @@ def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, An
     fast = bulk.decode_message(text if text is not None else frame.get("bytes") or b"",
                                MAX_CLIENT_SEQ)
     if fast is not None:
-        return _ingest(state, session_id, owner, fast[1], fast[0])
+        return await _ingest(state, session_id, owner, fast[1], fast[0])
     if text is None:
         try:
             text = (frame.get("bytes") or b"").decode()
@@ -114,14 +114,14 @@ def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, An
             return _error("malformed", "batch packets must be an array")
     else:
         packets = message if isinstance(message, list) else [message]
-    return _ingest(state, session_id, owner, packets, seq)
+    return await _ingest(state, session_id, owner, packets, seq)
 
 
-def _ingest(state: AppState, session_id: str, owner: str, packets: list[Any] | bulk.Batch,
-            seq: int | None) -> dict[str, Any]:
+async def _ingest(state: AppState, session_id: str, owner: str,
+                  packets: list[Any] | bulk.Batch, seq: int | None) -> dict[str, Any]:
     try:
         session = state.store.get(session_id, owner)  # it may have expired meanwhile
-        reply = ingest(state, session, packets, seq)
+        reply = await ingest(state, session, packets, seq)
     except SessionNotFound as exc:
         return _error("session_not_found", str(exc))
     except BatchAlreadyApplied as exc:
