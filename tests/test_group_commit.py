@@ -87,10 +87,11 @@ def test_a_lost_group_rebuilds_its_sessions_from_the_log(sample_graph: RoadGraph
     store.ingest(a, GPS[:3])
     done_a = store.ingest(a, GPS[3:], defer_commit=True)
     done_b = store.ingest(b, GPS[:2], defer_commit=True)
-    assert done_a.group is done_b.group is not None
+    group = done_a.group
+    assert group is not None and done_b.group is group
     assert store.get(a.id, "").packets == 6  # applied, not yet logged
     outcomes: list[BaseException | None] = []
-    done_a.group.when_done(outcomes.append)
+    group.when_done(outcomes.append)
     real = store.triplog._db
     store.triplog._db = FailingCommit(real)  # type: ignore[assignment]
     with pytest.raises(sqlite3.OperationalError):
@@ -137,9 +138,9 @@ def test_the_api_commits_the_batches_of_one_turn_once_before_replying(
         seen_before_commit.append(logged_rows(path))
 
     async def turn() -> list[dict[str, Any]]:
-        *replies, _ = await asyncio.gather(*(ingest(state, s, GPS[:2]) for s in sessions),
-                                           look())
-        return replies
+        replies = [asyncio.ensure_future(ingest(state, s, GPS[:2])) for s in sessions]
+        await asyncio.gather(*replies, look())
+        return [r.result() for r in replies]
 
     replies = asyncio.run(turn())
     assert [r["accepted"] for r in replies] == [2, 2, 2]
