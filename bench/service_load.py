@@ -38,6 +38,7 @@ what the offered load would take at that cost (above the server's cores it canno
         [--real-rate 50,100,200,500] [--sensors gyro_accel] [--gps-only ""]
         [--throughput 8] [--floor 50,100,200,500]
         [--floor-stacks uvicorn,uvicorn+msgpack,uvicorn-websockets,uvicorn-wsproto,granian,picows]
+        [--profile DIR]
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ import json
 import os
 import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -341,6 +343,21 @@ def start_workers(db: Path, log: Path, workers: int, env: dict[str, str]) -> Ser
     raise RuntimeError(f"workers did not come up: {log.read_text()[-2000:]}")
 
 
+def profiler(server: Server, folder: Path | None, name: str, seconds: float
+             ) -> subprocess.Popen[bytes] | None:
+    """py-spy sampling the server's processes for a real-rate run (``--profile DIR``): the
+    collapsed stacks in ``DIR/NAME.txt`` (for flamegraph.pl or speedscope); None without."""
+    if folder is None:
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    spy = shutil.which("py-spy", path=str(Path(sys.executable).parent)) or "py-spy"
+    return subprocess.Popen(
+        [spy, "record", "--pid", str(server.process.pid), "--subprocesses", "--nonblocking",
+         "--format", "raw", "--rate", "200", "--duration", str(int(seconds) + 1),
+         "--output", str(folder / f"{name}.txt")],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
 def server_name(workers: int) -> str:
     return "1 process" if workers == 0 else f"{workers} worker{'s' * (workers > 1)} + HAProxy"
 
@@ -366,7 +383,10 @@ def run_server(db: Path, tmp: Path, workers: int, drive: list[dict], args: argpa
         runs += [("gps_only", n) for n in counts(args.gps_only)]
         for sensors, n in runs:
             ticks = tick_batches(sent_by(drive, sensors))
+            spy = profiler(server, args.profile, f"{workers}-{sensors}-{n}", args.seconds)
             rows.append(asyncio.run(real_rate(server, ticks, n, args.seconds, sensors)))
+            if spy is not None:
+                spy.wait(timeout=60)
             print({**rows[-1], "server": server_name(workers)}, flush=True)
     finally:
         server.stop()
@@ -397,6 +417,9 @@ def main() -> None:
                         help="floor stacks, one after the other: uvicorn (websockets-sansio, "
                              "as navsvc serve), uvicorn-websockets, uvicorn-wsproto, granian, "
                              "picows; '+msgpack' for MessagePack frames (default uvicorn)")
+    parser.add_argument("--profile", type=Path, default=None, metavar="DIR",
+                        help="sample the server with py-spy during each real-rate run, the "
+                             "stacks into DIR (collapsed format)")
     args = parser.parse_args()
     drive = drive_packets(args.map, max(120.0, args.seconds + START_SPREAD_TICKS / 10 + 5.0))
     rows: list[dict[str, Any]] = []

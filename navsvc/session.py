@@ -122,16 +122,18 @@ _SKIP = object()  # a record add_records skips (simulator truth)
 _DEAD_RECKONING: dict[type, int] = {bulk.Imu: IMU, bulk.Odometer: ODOMETER,
                                     bulk.Steering: STEERING}
 _DEG = math.pi / 180.0  # math.radians(x) is x times this
+_NAN = math.nan
 
 
 class _Run:
-    """Dead-reckoning samples waiting to go through the filter as one run (rows)."""
+    """Dead-reckoning samples waiting to go through the filter as one run (rows, flat: NaN
+    where a field is absent, which is what ``np.array`` makes of None, at half the cost)."""
 
-    __slots__ = ("indices", "rows")
+    __slots__ = ("indices", "values")
 
     def __init__(self) -> None:
         self.indices: list[int] = []
-        self.rows: list[tuple[float | None, ...]] = []
+        self.values: list[float] = []
 
     def add(self, index: int, packet: bulk.Imu | bulk.Odometer | bulk.Steering,
             kind: int) -> None:
@@ -146,22 +148,25 @@ class _Run:
             if p.accel_mps2 is not None:
                 fwd = p.accel_mps2[0] if fwd is None else fwd
                 left = p.accel_mps2[1] if left is None else left
-            self.rows.append((p.t, IMU, None if yaw is None else yaw * _DEG, fwd, left,
-                              None, None, None, None))
+            self.values += (p.t, IMU, _NAN if yaw is None else yaw * _DEG,
+                            _NAN if fwd is None else fwd, _NAN if left is None else left,
+                            _NAN, _NAN, _NAN, _NAN)
         elif kind == ODOMETER:
             o: Any = packet
-            self.rows.append((o.t, ODOMETER, None, None, None, o.distance_m, o.ticks,
-                              o.speed_mps, None))
+            self.values += (o.t, ODOMETER, _NAN, _NAN, _NAN,
+                            _NAN if o.distance_m is None else o.distance_m,
+                            _NAN if o.ticks is None else o.ticks,
+                            _NAN if o.speed_mps is None else o.speed_mps, _NAN)
         else:
             a: Any = packet
-            self.rows.append((a.t, STEERING, None, None, None, None, None, None,
-                              a.angle_deg * _DEG))
+            self.values += (a.t, STEERING, _NAN, _NAN, _NAN, _NAN, _NAN, _NAN,
+                            a.angle_deg * _DEG)
 
     def take(self) -> tuple[list[int], SampleRun]:
         """The samples' indices and run; empties this one."""
-        indices, rows = self.indices, self.rows
-        self.indices, self.rows = [], []
-        return indices, SampleRun(np.array(rows, dtype=np.float64).reshape(-1, N_COLUMNS))
+        indices, values = self.indices, self.values
+        self.indices, self.values = [], []
+        return indices, SampleRun(np.array(values, dtype=np.float64).reshape(-1, N_COLUMNS))
 
 
 class VehicleSession:
