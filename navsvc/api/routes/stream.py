@@ -11,6 +11,10 @@ API key goes in the ``X-API-Key`` header or, for browsers, the ``api_key`` query
 (never written to the server's log). An unknown session closes the socket with code 4404, a
 missing or wrong key with 4401 (the reason says which).
 
+A result leaves once its batch is committed to the trip log, in the group commit of every
+message the event loop took in the same turn (:func:`navsvc.api.routes.sessions.ingest`);
+``unavailable`` when that commit failed (nothing of the batch was applied).
+
 Slow readers: replies wait in a queue of ``NAVSVC_WS_QUEUE`` messages; when it is full the
 oldest waiting reply is dropped (a newer one holds the newer positions), the next reply sent
 carries ``"dropped": n``, and ``navsvc_websocket_messages_dropped`` counts it. So a client that
