@@ -16,7 +16,12 @@ this process (asyncio, one WebSocket per session). Sessions replay a simulated d
 - GPS only: sessions created with ``sensors: gps_only`` send one fix a second.
 - memory: the server's resident memory before and after opening the sessions, per session.
 - floor: the real-rate runs against ``bench/ws_floor.py``, the same FastAPI + uvicorn
-  WebSocket stack answering without doing any work: what the transport alone costs.
+  WebSocket stack answering without doing any work: what the transport alone costs. With
+  ``--floor-stacks`` the floor is measured for each alternative in the same run: uvicorn
+  with each of its WebSocket implementations (``uvicorn`` = websockets-sansio, the
+  service's; ``uvicorn-websockets``; ``uvicorn-wsproto``), ``granian`` (the same ASGI app),
+  ``picows`` (no ASGI), and any of them ``+msgpack``: MessagePack binary frames instead of
+  JSON text, both ways.
 
 Servers (``--workers``, run one after the other): ``0`` is one ``navsvc serve`` process with no
 balancer (as ``make run``); ``N`` >= 1 is ``navsvc serve --workers N --balancer``, HAProxy in
@@ -32,6 +37,8 @@ what the offered load would take at that cost (above the server's cores it canno
     python bench/service_load.py [--map maps/monaco.db] [--seconds 20] [--workers 0,1,2]
         [--real-rate 50,100,200,500] [--sensors gyro_accel] [--gps-only ""]
         [--throughput 8] [--floor 50,100,200,500]
+        [--floor-stacks uvicorn,uvicorn+msgpack,uvicorn-websockets,uvicorn-wsproto,granian,picows]
+        [--profile DIR]
 """
 
 from __future__ import annotations
@@ -43,13 +50,16 @@ import json
 import os
 import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
+import msgspec
 import websockets
 from report import RESULTS, print_table, write_json
 
@@ -176,11 +186,17 @@ async def close_sessions(server: Server, ids: list[str]) -> None:
             await client.delete(f"/sessions/{sid}")
 
 
-async def _exchange(ws: Any, batch: str) -> dict[str, Any]:
-    """Send one batch (JSON text, encoded beforehand: the generator's CPU is the server's
-    too on this machine) and read its reply."""
+_UNPACK = msgspec.msgpack.Decoder().decode
+WIRES: dict[str, Callable[[Any], str | bytes]] = {"json": json.dumps,
+                                                  "msgpack": msgspec.msgpack.Encoder().encode}
+
+
+async def _exchange(ws: Any, batch: str | bytes) -> dict[str, Any]:
+    """Send one batch (JSON text, or MessagePack bytes, encoded beforehand: the generator's
+    CPU is the server's too on this machine) and read its reply (in the same format)."""
     await ws.send(batch)
-    reply: dict[str, Any] = json.loads(await ws.recv())
+    answer = await ws.recv()
+    reply: dict[str, Any] = json.loads(answer) if isinstance(answer, str) else _UNPACK(answer)
     if reply.get("type") != "result":
         raise RuntimeError(f"server answered {reply}")
     return reply
@@ -211,7 +227,7 @@ async def throughput(server: Server, packets: list[dict], sessions: int) -> dict
 
 
 async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seconds: float,
-                    sensors: str) -> dict[str, Any]:
+                    sensors: str, wire: str = "json") -> dict[str, Any]:
     before = rss_total_mb(server)
     ids = await open_sessions(server, sessions, sensors)
     latencies: list[float] = []
@@ -222,7 +238,8 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
                   for k in range(sessions) for i in range(int(seconds * 10))) / seconds
     sockets = [await websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream",
                                         max_size=None) for sid in ids]
-    encoded = [[json.dumps(batch) if batch else "" for batch in session_ticks]
+    encode = WIRES[wire]
+    encoded = [[encode(batch) if batch else "" for batch in session_ticks]
                for session_ticks in [ticks[(k * 37) % START_SPREAD_TICKS:
                                            (k * 37) % START_SPREAD_TICKS + int(seconds * 10)]
                                      for k in range(sessions)]]
@@ -284,10 +301,27 @@ async def real_rate(server: Server, ticks: list[list[dict]], sessions: int, seco
             "mb_per_session": (after - before) / sessions}
 
 
-def start_floor(log: Path) -> Server:
-    """``bench/ws_floor.py`` on a free loopback port; returns once it answers."""
+def start_floor(log: Path, stack: str = "uvicorn") -> Server:
+    """``bench/ws_floor.py`` on a free loopback port with a stack of ``--floor-stacks``
+    (its ``+wire`` left out: the floor takes both); returns once it answers."""
     floor = str(Path(__file__).with_name("ws_floor.py"))
-    return start_process(lambda port: [sys.executable, floor, str(port)], log)
+    name = stack.split("+")[0]
+    server, _, ws = name.partition("-")
+    if server not in ("uvicorn", "granian", "picows") or (ws and server != "uvicorn"):
+        raise SystemExit(f"unknown floor stack {stack!r}")
+    extra = ["--server", server] + (["--ws", ws] if ws else [])
+    started = start_process(lambda port: [sys.executable, floor, str(port), *extra], log)
+    if server == "picows":  # its WebSocket listens on the next port
+        port = int(started.url.rsplit(":", 1)[1])
+        started.ws_url = f"ws://127.0.0.1:{port + 1}"
+    return started
+
+
+def floor_wire(stack: str) -> str:
+    wire = stack.partition("+")[2] or "json"
+    if wire not in WIRES:
+        raise SystemExit(f"unknown wire format {wire!r} in floor stack {stack!r}")
+    return wire
 
 
 def start_workers(db: Path, log: Path, workers: int, env: dict[str, str]) -> Server:
@@ -307,6 +341,21 @@ def start_workers(db: Path, log: Path, workers: int, env: dict[str, str]) -> Ser
         time.sleep(0.5)
     server.stop()
     raise RuntimeError(f"workers did not come up: {log.read_text()[-2000:]}")
+
+
+def profiler(server: Server, folder: Path | None, name: str, seconds: float
+             ) -> subprocess.Popen[bytes] | None:
+    """py-spy sampling the server's processes for a real-rate run (``--profile DIR``): the
+    collapsed stacks in ``DIR/NAME.txt`` (for flamegraph.pl or speedscope); None without."""
+    if folder is None:
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    spy = shutil.which("py-spy", path=str(Path(sys.executable).parent)) or "py-spy"
+    return subprocess.Popen(
+        [spy, "record", "--pid", str(server.process.pid), "--subprocesses", "--nonblocking",
+         "--format", "raw", "--rate", "200", "--duration", str(int(seconds) + 1),
+         "--output", str(folder / f"{name}.txt")],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def server_name(workers: int) -> str:
@@ -334,7 +383,10 @@ def run_server(db: Path, tmp: Path, workers: int, drive: list[dict], args: argpa
         runs += [("gps_only", n) for n in counts(args.gps_only)]
         for sensors, n in runs:
             ticks = tick_batches(sent_by(drive, sensors))
+            spy = profiler(server, args.profile, f"{workers}-{sensors}-{n}", args.seconds)
             rows.append(asyncio.run(real_rate(server, ticks, n, args.seconds, sensors)))
+            if spy is not None:
+                spy.wait(timeout=60)
             print({**rows[-1], "server": server_name(workers)}, flush=True)
     finally:
         server.stop()
@@ -361,6 +413,13 @@ def main() -> None:
     parser.add_argument("--floor", default="50,100,200,500",
                         help="session counts of real-rate runs against the bare WebSocket "
                              "stack (bench/ws_floor.py)")
+    parser.add_argument("--floor-stacks", default="uvicorn",
+                        help="floor stacks, one after the other: uvicorn (websockets-sansio, "
+                             "as navsvc serve), uvicorn-websockets, uvicorn-wsproto, granian, "
+                             "picows; '+msgpack' for MessagePack frames (default uvicorn)")
+    parser.add_argument("--profile", type=Path, default=None, metavar="DIR",
+                        help="sample the server with py-spy during each real-rate run, the "
+                             "stacks into DIR (collapsed format)")
     args = parser.parse_args()
     drive = drive_packets(args.map, max(120.0, args.seconds + START_SPREAD_TICKS / 10 + 5.0))
     rows: list[dict[str, Any]] = []
@@ -369,17 +428,19 @@ def main() -> None:
         shutil.copy(args.map, db)
         for workers in counts(args.workers):
             rows += run_server(db, Path(tmp), workers, drive, args)
-        floor = start_floor(Path(tmp) / "floor.log")
-        try:
-            for sensors in filter(None, args.sensors.split(",")):
-                for n in counts(args.floor):
-                    row = asyncio.run(real_rate(floor, tick_batches(sent_by(drive, sensors)), n,
-                                                args.seconds, sensors))
-                    rows.append({**row, "scenario": f"floor: bare stack ({sensors})",
-                                 "server": "floor (1 process)", "workers": 0})
-                    print(rows[-1], flush=True)
-        finally:
-            floor.stop()
+        for stack in filter(None, args.floor_stacks.split(",")):
+            floor = start_floor(Path(tmp) / "floor.log", stack)
+            try:
+                for sensors in filter(None, args.sensors.split(",")):
+                    for n in counts(args.floor):
+                        row = asyncio.run(real_rate(
+                            floor, tick_batches(sent_by(drive, sensors)), n, args.seconds,
+                            sensors, floor_wire(stack)))
+                        rows.append({**row, "scenario": f"floor: bare stack ({sensors})",
+                                     "server": f"floor: {stack}", "workers": 0})
+                        print(rows[-1], flush=True)
+            finally:
+                floor.stop()
     print_tables(rows)
     write_json("service_load", {"rows": rows, "scaling": scaling(rows),
                                 "argv": sys.argv[1:]})
@@ -400,13 +461,14 @@ def scaling(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def print_tables(rows: list[dict[str, Any]]) -> None:
     sat = [r for r in rows if r["scenario"] == "throughput"]
-    print_table("saturation: sessions send as fast as the server answers (gyro_odometer, "
-                "batches of 100); cores = CPU seconds per second",
-                ["server", "sessions", "packets/s", "server cores", "of which HAProxy",
-                 "generator cores", "others' cores", "packets/s per server core", "load avg"],
-                [[r["server"], r["sessions"], r["packets_per_s"], r["server_cpu"],
-                  r["balancer_cpu"], r["client_cpu"], r["others_cpu"], r["packets_per_cpu_s"],
-                  r["load_average"]] for r in sat])
+    if sat:
+        print_table("saturation: sessions send as fast as the server answers (gyro_odometer, "
+                    "batches of 100); cores = CPU seconds per second",
+                    ["server", "sessions", "packets/s", "server cores", "of which HAProxy",
+                     "generator cores", "others' cores", "packets/s per server core", "load avg"],
+                    [[r["server"], r["sessions"], r["packets_per_s"], r["server_cpu"],
+                      r["balancer_cpu"], r["client_cpu"], r["others_cpu"], r["packets_per_cpu_s"],
+                      r["load_average"]] for r in sat])
     for w, ratio in scaling(rows).items():
         print(f"  {w} worker(s) / 1 worker: packets/s x{ratio['packets_per_s_ratio']:.2f}, "
               f"per server core x{ratio['packets_per_server_cpu_s_ratio']:.2f}")

@@ -2,8 +2,9 @@
 
 Each app has its own registry, so that tests can run several apps in one process. What a
 fleet operator watches, per worker: packets accepted and rejected by reason, open sessions,
-ingest latency (``navsvc_batch_seconds``), trip-log append latency and size, checkpoint lag
-(packets a restart would replay, and for how long), and event-loop lag. Behind the balancer
+ingest latency (``navsvc_batch_seconds``), trip-log append and commit latency (and batches
+per commit) and size, checkpoint lag (packets a restart would replay, and for how long), and
+event-loop lag. Behind the balancer
 :func:`merge_expositions` joins every worker's scrape into one, each series labelled with
 its ``worker``.
 """
@@ -62,8 +63,18 @@ class Metrics:
 
         self.triplog_append_seconds = Histogram(
             "navsvc_triplog_append_seconds",
-            "Time to write one batch's accepted packets to the trip log (committed)",
+            "Time to write one batch's accepted packets to the trip log (the API's batches "
+            "are then committed in groups: navsvc_triplog_commit_seconds)",
             buckets=_FAST_BUCKETS, registry=self.registry)
+        self.triplog_commit_seconds = Histogram(
+            "navsvc_triplog_commit_seconds",
+            "Time to commit one group of batches to the trip log (their replies wait for it)",
+            buckets=_FAST_BUCKETS, registry=self.registry)
+        self.triplog_commit_batches = Histogram(
+            "navsvc_triplog_commit_batches",
+            "Batches committed together in one trip-log commit (the messages of one turn of "
+            "the event loop)", buckets=(1, 2, 5, 10, 20, 50, 100, 200, 500),
+            registry=self.registry)
         self.triplog_bytes = Gauge(
             "navsvc_triplog_bytes", "Size of the trip log's files (database, write-ahead log)",
             ["file"], registry=self.registry)
@@ -102,6 +113,25 @@ class Metrics:
             finally:
                 histogram.observe(time.perf_counter() - start)
         return timed  # type: ignore[return-value]
+
+    def timed_commit(self, triplog: Any) -> Callable[[], None]:
+        """``triplog.commit`` (TripLog) timed into ``navsvc_triplog_commit_seconds``, its
+        group's size into ``navsvc_triplog_commit_batches``."""
+        commit, seconds, batches = triplog.commit, self.triplog_commit_seconds, \
+            self.triplog_commit_batches
+
+        @functools.wraps(commit)
+        def timed() -> None:
+            group = triplog.group
+            if group is None:
+                return
+            start = time.perf_counter()
+            try:
+                commit()
+            finally:
+                seconds.observe(time.perf_counter() - start)
+                batches.observe(group.batches)
+        return timed
 
     def text(self) -> bytes:
         return generate_latest(self.registry)

@@ -53,7 +53,7 @@ from navsvc.fusion import (
 from navsvc.fusion.road.batch import IMU, N_COLUMNS, ODOMETER, STEERING, SampleRun
 from navsvc.fusion.road.filter import RoadFilter
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
-from navsvc.triplog import Checkpoint, LoggedSession, TripLog
+from navsvc.triplog import Checkpoint, CommitGroup, LoggedSession, TripLog
 from navsvc.types import (
     FusedEstimate,
     GpsFix,
@@ -122,16 +122,18 @@ _SKIP = object()  # a record add_records skips (simulator truth)
 _DEAD_RECKONING: dict[type, int] = {bulk.Imu: IMU, bulk.Odometer: ODOMETER,
                                     bulk.Steering: STEERING}
 _DEG = math.pi / 180.0  # math.radians(x) is x times this
+_NAN = math.nan
 
 
 class _Run:
-    """Dead-reckoning samples waiting to go through the filter as one run (rows)."""
+    """Dead-reckoning samples waiting to go through the filter as one run (rows, flat: NaN
+    where a field is absent, which is what ``np.array`` makes of None, at half the cost)."""
 
-    __slots__ = ("indices", "rows")
+    __slots__ = ("indices", "values")
 
     def __init__(self) -> None:
         self.indices: list[int] = []
-        self.rows: list[tuple[float | None, ...]] = []
+        self.values: list[float] = []
 
     def add(self, index: int, packet: bulk.Imu | bulk.Odometer | bulk.Steering,
             kind: int) -> None:
@@ -146,22 +148,25 @@ class _Run:
             if p.accel_mps2 is not None:
                 fwd = p.accel_mps2[0] if fwd is None else fwd
                 left = p.accel_mps2[1] if left is None else left
-            self.rows.append((p.t, IMU, None if yaw is None else yaw * _DEG, fwd, left,
-                              None, None, None, None))
+            self.values += (p.t, IMU, _NAN if yaw is None else yaw * _DEG,
+                            _NAN if fwd is None else fwd, _NAN if left is None else left,
+                            _NAN, _NAN, _NAN, _NAN)
         elif kind == ODOMETER:
             o: Any = packet
-            self.rows.append((o.t, ODOMETER, None, None, None, o.distance_m, o.ticks,
-                              o.speed_mps, None))
+            self.values += (o.t, ODOMETER, _NAN, _NAN, _NAN,
+                            _NAN if o.distance_m is None else o.distance_m,
+                            _NAN if o.ticks is None else o.ticks,
+                            _NAN if o.speed_mps is None else o.speed_mps, _NAN)
         else:
             a: Any = packet
-            self.rows.append((a.t, STEERING, None, None, None, None, None, None,
-                              a.angle_deg * _DEG))
+            self.values += (a.t, STEERING, _NAN, _NAN, _NAN, _NAN, _NAN, _NAN,
+                            a.angle_deg * _DEG)
 
     def take(self) -> tuple[list[int], SampleRun]:
         """The samples' indices and run; empties this one."""
-        indices, rows = self.indices, self.rows
-        self.indices, self.rows = [], []
-        return indices, SampleRun(np.array(rows, dtype=np.float64).reshape(-1, N_COLUMNS))
+        indices, values = self.indices, self.values
+        self.indices, self.values = [], []
+        return indices, SampleRun(np.array(values, dtype=np.float64).reshape(-1, N_COLUMNS))
 
 
 class VehicleSession:
@@ -669,6 +674,7 @@ class Ingested:
 
     reply: dict[str, Any]
     result: BatchResult | None
+    group: CommitGroup | None = None  # with ``defer_commit``: the reply waits for its commit
 
 
 class SessionStore:
@@ -694,6 +700,8 @@ class SessionStore:
         # the one being rebuilt in the background, a step at a time
         self._rebuilding: dict[str, tuple[LoggedSession, Generator[None, None, LiveSession]]] \
             = {}
+        self._group: CommitGroup | None = None  # the trip log's open group, as last seen
+        self._uncommitted: dict[str, LiveSession] = {}  # sessions with batches in it
 
     def __len__(self) -> int:
         return len(self._sessions) + len(self._pending) + len(self._rebuilding)
@@ -743,8 +751,14 @@ class SessionStore:
             self._install(self._load(self._pending.pop(session_id)))
 
     def ingest(self, session: LiveSession, records: list[Any] | bulk.Batch,
-               client_seq: int | None = None) -> Ingested:
+               client_seq: int | None = None, defer_commit: bool = False) -> Ingested:
         """Apply a batch and log it as one unit; returns once it is on disk.
+
+        ``defer_commit``: the batch joins the trip log's open :class:`CommitGroup` instead,
+        returned as ``Ingested.group``; the reply must wait for that group's commit
+        (:meth:`TripLog.commit`). If the group is lost (the commit fails), every session with
+        a batch in it is rebuilt from the log, as below, and the group's waiters learn the
+        error: none of its batches was acknowledged.
 
         ``client_seq``, the client's number for the batch (increasing per session), makes a
         resend safe: a batch numbered at or below the last one is not applied again but
@@ -762,14 +776,17 @@ class SessionStore:
                     f"batch {client_seq} is not after the session's last numbered batch "
                     f"({last}): either it was applied already and its reply is no longer kept "
                     f"(the last {REPLIES_KEPT} are), or the numbers went backwards")
-            return Ingested({**kept, "duplicate": True}, None)
+            # answered once the batch it repeats is committed, if it is not yet
+            return Ingested({**kept, "duplicate": True}, None,
+                            self._group if session.id in self._uncommitted else None)
         result = self._apply(session, records)
         reply = batch_reply(result, self.graph.frame)
         try:
             session.last_batch_rowid = self.triplog.append(
                 session.id, session.packets, result.records if result.encoded is None else
                 result.accepted, len(result.rejections), client_seq,
-                reply if client_seq is not None else None, result.encoded)
+                reply if client_seq is not None else None, result.encoded,
+                not defer_commit)  # commit
         except sqlite3.Error:
             log.exception("session %s: trip log write failed; rebuilding from the log",
                           session.id)
@@ -782,8 +799,32 @@ class SessionStore:
             session.replies[client_seq] = reply
             if len(session.replies) > REPLIES_KEPT:
                 session.replies.popitem(last=False)
-        self._checkpoint_if_due(session)
-        return Ingested(reply, result)
+        group = self.triplog.group if defer_commit else None
+        if group is not None:
+            self._watch(group, session)
+        self._checkpoint_if_due(session)  # in the group too, when there is one
+        return Ingested(reply, result, group)
+
+    def _watch(self, group: CommitGroup, session: LiveSession) -> None:
+        """Note that ``session`` has a batch in ``group``, to rebuild it should the group be
+        lost."""
+        if group is not self._group:
+            self._group, self._uncommitted = group, {}
+            sessions = self._uncommitted
+            group.when_done(lambda error: self._group_done(sessions, error))
+        self._uncommitted[session.id] = session
+
+    def _group_done(self, sessions: dict[str, LiveSession], error: BaseException | None
+                    ) -> None:
+        """A commit group's end. When it was rolled back, rebuild its sessions from the log,
+        so that memory never holds packets the log lacks."""
+        for session_id, session in sessions.items() if error is not None else ():
+            if session_id in self._sessions:
+                log.error("session %s: trip log commit failed; rebuilding from the log",
+                          session_id)
+                self._sessions[session_id] = self._load(session.logged())
+        if sessions is self._uncommitted:
+            self._group, self._uncommitted = None, {}
 
     def _apply(self, session: LiveSession, records: list[Any] | bulk.Batch) -> BatchResult:
         """The batch applied to the session's pipeline; after a fault, the pipeline is rebuilt

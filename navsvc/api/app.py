@@ -69,6 +69,7 @@ def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> Fast
                          id_prefix=settings.session_prefix)
     metrics = Metrics()
     triplog.append = metrics.timed_append(triplog.append)  # type: ignore[method-assign]
+    triplog.commit = metrics.timed_commit(triplog)  # type: ignore[method-assign]
     metrics.watch_triplog(settings.triplog)
     metrics.watch_checkpoints(store.checkpoint_lag)
     state = AppState(settings=settings, graph=graph, store=store, metrics=metrics,

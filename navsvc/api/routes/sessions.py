@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import sqlite3
 import time
 from typing import Any
@@ -13,11 +15,13 @@ from navsvc.api.fleet import Scope, ask_workers, other_workers
 from navsvc.api.models import BatchReply, ErrorBody, SessionCreate, SessionInfo, SessionList
 from navsvc.errors import ConfigError
 from navsvc.session import MAX_CLIENT_SEQ, LiveSession
+from navsvc.triplog import CommitGroup
 from navsvc.wire.bulk import Batch
 from navsvc.wire.positions import position_json
 
 router = APIRouter(prefix="/sessions", tags=["sessions"],
                    responses={401: {"model": ErrorBody}, 404: {"model": ErrorBody}})
+log = logging.getLogger(__name__)
 
 
 def session_info(state: AppState, s: LiveSession) -> SessionInfo:
@@ -28,17 +32,23 @@ def session_info(state: AppState, s: LiveSession) -> SessionInfo:
         position=None if position is None else position_json(position, state.graph.frame))
 
 
-def ingest(state: AppState, session: LiveSession, packets: list[Any] | Batch,
-           client_seq: int | None = None) -> dict[str, Any]:
+async def ingest(state: AppState, session: LiveSession, packets: list[Any] | Batch,
+                 client_seq: int | None = None) -> dict[str, Any]:
     """Apply a batch (API and WebSocket alike; a :class:`Batch` when the WebSocket decoded
     and validated it whole), count it, and return its reply, the JSON of a
-    :class:`BatchReply`."""
+    :class:`BatchReply`, once the trip log has committed it.
+
+    Group commit: the batch joins the trip log's open transaction, committed once the event
+    loop has run every message it had ready (:func:`committed`), so the batches of one turn
+    share one commit; the reply waits for it. A lost commit is a 503, as a failed write is."""
     limit = state.settings.max_batch_packets
     if len(packets) > limit:
         raise HTTPException(413, f"{len(packets)} packets in one batch; the limit is {limit}")
     start = time.perf_counter()
     try:
-        done = state.store.ingest(session, packets, client_seq)
+        done = state.store.ingest(session, packets, client_seq, defer_commit=True)
+        if done.group is not None:
+            await committed(state, done.group)
     except sqlite3.Error as exc:
         raise HTTPException(503, f"the trip log cannot be written ({exc}); the batch was not "
                                  "applied, send it again") from exc
@@ -52,6 +62,34 @@ def ingest(state: AppState, session: LiveSession, packets: list[Any] | Batch,
         if session.id in state.viewers:  # the records are decoded only for a viewer
             state.viewers.publish(session.id, done.result.records, done.reply)
     return done.reply
+
+
+async def committed(state: AppState, group: CommitGroup) -> None:
+    """Return once ``group`` is committed; raise its error (sqlite3.Error) if it was lost.
+
+    The first waiter of a group schedules its commit with ``call_soon``: it runs after the
+    callbacks the event loop already has ready (the other connections' messages of this
+    turn), which join the group meanwhile."""
+    future: asyncio.Future[BaseException | None] = asyncio.get_running_loop().create_future()
+
+    def done(error: BaseException | None) -> None:
+        if not future.done():  # the waiter may be gone (its connection closed)
+            future.set_result(error)
+
+    group.when_done(done)
+    if not group.scheduled and not group.finished:
+        group.scheduled = True
+        asyncio.get_running_loop().call_soon(_commit, state)
+    error = await future
+    if error is not None:
+        raise error
+
+
+def _commit(state: AppState) -> None:
+    try:
+        state.store.triplog.commit()
+    except sqlite3.Error as exc:  # the group's waiters have it, and answer 503
+        log.error("trip log commit failed: %s", exc)
 
 
 def named_profile(state: AppState, name: str) -> dict[str, Any]:
@@ -126,7 +164,7 @@ async def post_packets(
                     "409 when that reply is no longer kept (the last 64 are)"),
 ) -> dict[str, Any]:
     """Apply packets in order; the reply comes once the accepted ones are in the trip log."""
-    return ingest(state, state.store.get(session_id, owner), packets, batch_seq)
+    return await ingest(state, state.store.get(session_id, owner), packets, batch_seq)
 
 
 @router.get("/{session_id}/position", responses={200: {"description": "matched position"}})
