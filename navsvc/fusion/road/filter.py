@@ -115,6 +115,7 @@ class RoadState:
     gps_bias_t: float | None = None  # time of the GPS bias states
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
+    gps_velocity_nis_mean: float = 2.0  # running mean of the GPS velocity's NIS
     last_gps_t: float | None = None
     recent_fixes: tuple[tuple[float, float, float, float], ...] = ()  # rules and fuzzy:
     # (t, east, north, heading of the estimate) of the last few seconds' fixes
@@ -736,12 +737,19 @@ class RoadFilter:
             self._fuse_gps_course(v.heading_rad, v.speed_mps)
 
     def _fuse_gps_course(self, course_rad: float, speed_mps: float) -> None:
-        """GPS course and speed; a heading the gate keeps refusing is replaced by the course
-        (after a long stop or outage the filter's heading can be far off and overconfident)."""
+        """GPS course and speed, with a sigma scaled by the running mean of their NIS (as
+        the fixes'; receivers' courses are noisier than any one number says); a heading the
+        gate keeps refusing is replaced by the course (after a long stop or outage the
+        filter's heading can be far off and overconfident)."""
         s, cfg = self.state, self.config
         gate = None if self.profile.gps_alone else 2
-        nis = self._update(GpsVelocity(speed_mps, course_rad, cfg.gps_velocity_sigma_mps),
-                           gate_dof=gate)
+        sigma = cfg.gps_velocity_sigma_mps * math.sqrt(max(1.0, s.gps_velocity_nis_mean / 2.0))
+        z, h, H, R = m = GpsVelocity(speed_mps, course_rad, sigma).model(s.x)
+        seen = kalman.nis(s.P, H, R, z - h)
+        if math.isfinite(seen):  # the course's error level, learnt as the fixes' is
+            s.gps_velocity_nis_mean += (min(seen, 10.0 * cfg.gps_huber_nis) -
+                                        s.gps_velocity_nis_mean) / cfg.gps_nis_memory_fixes
+        nis = self._update_linearised(m, gate_dof=gate)
         if nis is not None:
             s.gated_courses = 0
             return
