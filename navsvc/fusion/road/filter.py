@@ -663,14 +663,30 @@ class RoadFilter:
             _reset_variance(s.P, SPEED, 1.0)
             s.gated_courses = 0
 
+    # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
+    # position, heading and speed)
+    CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
+
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
-        """The thesis's rules or fuzzy weights; fixes farther than the rules' distance
-        threshold (and 5 sigma) for ``reacquire_after_gated_s`` restart the estimate from
-        GPS (the thesis waits 3,000 fixes, for SA-era GPS: fifty minutes of dead reckoning
-        at 1 Hz, by which time the estimate is kilometres off)."""
+        """The thesis's rules or fuzzy weights decide position, heading and speed; the same
+        fix calibrates the sensor-error states by a Kalman gain (:meth:`_blend`), and the
+        covariance is kept honest (the slowly changing GPS error is modelled as in the
+        ``ekf`` mode, fixes faster than 1 Hz are not independent). A fix past the thesis's
+        distance threshold restarts the estimate from GPS when the estimate's own
+        uncertainty covers it (it is lost, not the fix: after an outage), when the fixes jump
+        back by about a jump a restart followed (a non-line-of-sight run), or after
+        ``reacquire_after_gated_s`` (the thesis waits 3,000 fixes, for SA-era GPS: fifty
+        minutes of dead reckoning at 1 Hz, by which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        fix = self._with_velocity(fix, east, north)
+        fix, track_var = self._with_velocity(fix, east, north)
+        sigma = self._sigma_m(fix)
+        white, s.gps_bias_sigma_m = self._split_sigma(sigma)
+        self._propagate_gps_bias(fix.t)
+        fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
+        m = self._weighted_position(east, north, white * math.sqrt(fixes_per_s))
+        z, h, H, R = m
+        nis = kalman.nis(s.P, H, R, z - h)
         distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
         if cfg.gps_mode == GpsMode.RULES:
             decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
@@ -682,27 +698,60 @@ class RoadFilter:
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
                 GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
-        if distance > max(cfg.rules.max_distance_m, 5.0 * self._sigma_m(fix)):
-            s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
-            if fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
-                decision = GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
-                                       "re-acquiring: far from the fixes too long")
-                s.first_gated_t = None
-        else:
-            s.first_gated_t = None
-        self._apply_decision(fix, decision, east, north)
+        decision = self._divergence_guard(fix, decision, distance, nis, z - h, sigma)
+        self._apply_decision(fix, decision, east, north, m, track_var)
 
-    def _with_velocity(self, fix: GpsFix, east: float, north: float) -> GpsFix:
+    def _weighted_position(self, east: float, north: float, sigma_m: float) -> Linearised:
+        """The fix as the weighted sums take it: where the estimate says the fix should lie
+        (the latency's drive back along the heading; the latency a known constant: these
+        modes do not learn it). The thesis pulls toward the fix itself: the GPS bias states
+        hold no value here (map feedback may have moved them; they are zeroed) and carry only
+        the slowly changing part of the fix's error, in the covariance."""
+        s = self.state
+        s.x[list(GPS_BIAS)] = 0.0
+        z, h, H, R = GpsPosition(east, north, sigma_m).model(s.x)
+        H[:, GPS_LATENCY] = 0.0
+        return z, h, H, R
+
+    def _divergence_guard(self, fix: GpsFix, d: GpsDecision, distance_m: float, nis: float,
+                          innovation: Array, sigma_m: float) -> GpsDecision:
+        """The thesis's decision, unless the estimate has diverged (see
+        :meth:`_fuse_gps_weighted`)."""
+        s, cfg = self.state, self.config
+        far = distance_m > max(cfg.rules.max_distance_m, 5.0 * sigma_m)
+        if not far:
+            s.first_gated_t = None
+            return d
+        if d.action == GpsAction.REJECT:
+            if math.isfinite(nis) and nis <= kalman.gate_limit(2):
+                s.first_gated_t = None
+                return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the "
+                                   "estimate's own uncertainty covers the fix")
+            if self._jumps_back(fix.t, innovation, sigma_m):
+                s.first_gated_t = None
+                return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
+                                   "re-acquired: the fixes jumped back")
+        s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
+        if fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
+            s.first_gated_t = None
+            s.followed_jump = (fix.t, float(innovation[0]), float(innovation[1]))
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
+                               "re-acquiring: far from the fixes too long")
+        return d
+
+    def _with_velocity(self, fix: GpsFix, east: float, north: float
+                       ) -> tuple[GpsFix, tuple[float, float] | None]:
         """The fix with a course and speed from the track of recent fixes when the receiver
         sends none (the rules and fuzzy modes correct heading and speed only from a GPS
         course; without one they ran to hundreds of metres): from the oldest fix of the last
         ``velocity_baseline_s`` that lies far enough back against the fixes' error, with the
-        filter's heading turned by less than ``initial_heading_max_turn_rad`` since."""
+        filter's heading turned by less than ``initial_heading_max_turn_rad`` since. Also
+        the variances of that course and speed (None for the receiver's own)."""
         s, cfg = self.state, self.config
         recent = [f for f in s.recent_fixes if fix.t - f[0] <= cfg.velocity_baseline_s]
         s.recent_fixes = (*recent, (fix.t, east, north, float(s.x[HEADING])))
         if fix.heading_rad is not None and fix.speed_mps is not None:
-            return fix
+            return fix, None
         spread = math.sqrt(2.0) * self._sigma_m(fix)
         for t0, e0, n0, heading0 in recent:
             moved = math.hypot(east - e0, north - n0)
@@ -710,12 +759,14 @@ class RoadFilter:
             if fix.t > t0 and turned < cfg.initial_heading_max_turn_rad and \
                     moved >= max(cfg.initial_heading_min_move_m,
                                  cfg.initial_heading_min_move_sigmas * spread):
-                return replace(fix, speed_mps=moved / (fix.t - t0),
-                               heading_rad=bearing_rad(e0, n0, east, north))
-        return fix
+                return (replace(fix, speed_mps=moved / (fix.t - t0),
+                                heading_rad=bearing_rad(e0, n0, east, north)),
+                        ((spread / moved) ** 2, (spread / (fix.t - t0)) ** 2))
+        return fix, None
 
-    def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float) -> None:
-        s = self.state
+    def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float,
+                        m: Linearised, track_var: tuple[float, float] | None) -> None:
+        s, cfg = self.state, self.config
         if d.action == GpsAction.REJECT:
             s.gated_fixes += 1
             s.gps = GpsUsage(False, 0.0, d.reason)
@@ -726,27 +777,47 @@ class RoadFilter:
                                  self._measured_speed(fix))
             s.gps = GpsUsage(True, 1.0, d.reason)
             return
-        self._blend(GpsPosition(east, north, self._sigma_m(fix)).model(s.x), d.position_weight,
-                    (X_M, Y_M))
+        self._blend(m, d.position_weight, (X_M, Y_M))
         course = self._gps_course(fix)
         if course is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
-            # weighted sum of heading (wrapped) and speed with the GPS course and speed
-            self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.radians(5.0),
-                                       self.config.gps_velocity_sigma_mps).model(s.x),
-                        d.heading_weight, (HEADING, SPEED))
+            # weighted sum of heading (wrapped) and speed with the GPS course and speed;
+            # with an odometer the speed is its (GPS speed calibrates the odometer's scale)
+            heading_var, speed_var = track_var or \
+                (course[1], cfg.gps_velocity_sigma_mps ** 2)
+            speed_state = None if OdometerSpeed in self.profile.measurements else SPEED
+            self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.sqrt(heading_var),
+                                       math.sqrt(speed_var)).model(s.x),
+                        d.heading_weight, (HEADING, speed_state))
             s.x[HEADING] %= 2.0 * math.pi
         s.gps = GpsUsage(True, d.position_weight, d.reason)
 
-    def _blend(self, m: Linearised, weight: float, states: tuple[int, ...]) -> None:
+    def _blend(self, m: Linearised, weight: float, states: tuple[int | None, ...]) -> None:
         """The thesis's weighted sum: a fixed gain of ``weight`` from each row of the
-        measurement to the state it measures (``states``, in row order), none to any other
-        (a GPS position's Jacobian reaches speed, heading, latency and bias too)."""
+        measurement to the state it measures (``states``, in row order; None: to none), none
+        to any other state the thesis keeps (a GPS position's Jacobian reaches speed,
+        heading, latency and bias too). The sensor-error states (``CALIBRATED``), which
+        the thesis does not have, take their Kalman gain from the same measurement: a gyro
+        bias or an odometer scale left alone integrated into drift that a 0.04/s position
+        pull cannot hold. The Joseph form keeps ``P`` right for this gain."""
         s = self.state
         z, h, H, R = m
+        PHt = s.P @ H.T
         K = np.zeros((N_STATES, len(z)))
+        calibrated = list(self.CALIBRATED)
+        K[calibrated, :] = (PHt @ np.linalg.inv(H @ PHt + R))[calibrated, :]
         for row, state in enumerate(states):
-            K[state, row] = weight
+            if state is not None:
+                K[state, row] = weight
         s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, K)
+        self._bound_calibration()
+
+    def _bound_calibration(self) -> None:
+        """The sensor-error states within the bounds the ``ekf`` mode keeps them in."""
+        s, cfg = self.state, self.config
+        low, high = cfg.odo_scale_limits
+        s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
+        limit = cfg.gyro_scale_error_limit
+        s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
 
     # --- output --------------------------------------------------------------------------
     def _bias_share_m2(self) -> float:
