@@ -108,8 +108,9 @@ class RoadState:
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     last_gps_t: float | None = None
-    recent_fixes: tuple[tuple[float, float, float, float], ...] = ()  # rules and fuzzy:
-    # (t, east, north, heading of the estimate) of the last few seconds' fixes
+    recent_fixes: tuple[tuple[float, float, float, float, float, float], ...] = ()  # rules
+    # and fuzzy: (t, east, north, heading, east, north of the estimate) of the last few
+    # seconds' fixes
     last_output_t: float | None = None
     gps: GpsUsage | None = None
 
@@ -666,6 +667,8 @@ class RoadFilter:
     # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
     # position, heading and speed)
     CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
+    HEADING_UNKNOWN_RAD = math.radians(45.0)  # rules, fuzzy: a heading less sure than
+    # this takes the next GPS course whole
 
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
         """The thesis's rules or fuzzy weights decide position, heading and speed; the same
@@ -688,18 +691,27 @@ class RoadFilter:
         z, h, H, R = m
         nis = kalman.nis(s.P, H, R, z - h)
         distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
+        speed = self._weighted_speed(fix)
         if cfg.gps_mode == GpsMode.RULES:
             decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
-                                    distance_m=distance, gps_speed_mps=fix.speed_mps,
+                                    distance_m=distance, gps_speed_mps=speed,
                                     rejected_fixes=s.gated_fixes, dt_s=dt_s)
         else:
-            pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, fix.speed_mps or 0.0,
-                                          s.gated_fixes)
+            pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, speed, s.gated_fixes)
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
                 GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
         decision = self._divergence_guard(fix, decision, distance, nis, z - h, sigma)
         self._apply_decision(fix, decision, east, north, m, track_var)
+
+    def _weighted_speed(self, fix: GpsFix) -> float:
+        """The speed the rules and fuzzy sets take: the GPS speed; from a receiver that
+        sends none, the odometer's, else the estimate's (not zero: "stopped" ignored the
+        heading of a car driving at 12 m/s)."""
+        if fix.speed_mps is not None:
+            return fix.speed_mps
+        measured = self._measured_speed(fix)
+        return measured[0] if measured is not None else abs(float(self.state.x[SPEED]))
 
     def _weighted_position(self, east: float, north: float, sigma_m: float) -> Linearised:
         """The fix as the weighted sums take it: where the estimate says the fix should lie
@@ -736,7 +748,7 @@ class RoadFilter:
             s.first_gated_t = None
             s.followed_jump = (fix.t, float(innovation[0]), float(innovation[1]))
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
-                               "re-acquiring: far from the fixes too long")
+                               "re-acquiring: far from the fixes too long", heading_lost=True)
         return d
 
     def _with_velocity(self, fix: GpsFix, east: float, north: float
@@ -749,16 +761,22 @@ class RoadFilter:
         the variances of that course and speed (None for the receiver's own)."""
         s, cfg = self.state, self.config
         recent = [f for f in s.recent_fixes if fix.t - f[0] <= cfg.velocity_baseline_s]
-        s.recent_fixes = (*recent, (fix.t, east, north, float(s.x[HEADING])))
+        s.recent_fixes = (*recent, (fix.t, east, north, float(s.x[HEADING]),
+                                    float(s.x[X_M]), float(s.x[Y_M])))
         if fix.heading_rad is not None and fix.speed_mps is not None:
             return fix, None
         spread = math.sqrt(2.0) * self._sigma_m(fix)
-        for t0, e0, n0, heading0 in recent:
+        for t0, e0, n0, heading0, x0, y0 in recent:
             moved = math.hypot(east - e0, north - n0)
             turned = abs(math.remainder(float(s.x[HEADING]) - heading0, 2.0 * math.pi))
+            driven = math.hypot(s.x[X_M] - x0, s.x[Y_M] - y0)
             if fix.t > t0 and turned < cfg.initial_heading_max_turn_rad and \
                     moved >= max(cfg.initial_heading_min_move_m,
-                                 cfg.initial_heading_min_move_sigmas * spread):
+                                 cfg.initial_heading_min_move_sigmas * spread) and \
+                    (self.profile.gps_alone or
+                     abs(moved - driven) <= 3.0 * spread + 0.1 * driven):
+                # the fixes moved as far as dead reckoning drove (a standing car's fixes
+                # wandered 30 m in 4 s in a street canyon, and their line became the heading)
                 return (replace(fix, speed_mps=moved / (fix.t - t0),
                                 heading_rad=bearing_rad(e0, n0, east, north)),
                         ((spread / moved) ** 2, (spread / (fix.t - t0)) ** 2))
@@ -773,13 +791,18 @@ class RoadFilter:
             return
         s.gated_fixes = 0
         if d.action in (GpsAction.REINITIALIZE, GpsAction.INITIALIZE):
-            self._reset_from_gps(fix, east, north, self._gps_course(fix),
-                                 self._measured_speed(fix))
+            course = self._gps_course(fix)
+            self._reset_from_gps(fix, east, north, course, self._measured_speed(fix))
+            if course is None and d.heading_lost:  # unknown until a course comes
+                _reset_variance(s.P, HEADING, math.pi ** 2 / 3.0)
             s.gps = GpsUsage(True, 1.0, d.reason)
             return
         self._blend(m, d.position_weight, (X_M, Y_M))
         course = self._gps_course(fix)
-        if course is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
+        heading_weight = d.heading_weight
+        if s.P[HEADING, HEADING] > self.HEADING_UNKNOWN_RAD ** 2:
+            heading_weight = 1.0  # the thesis's initialisation of the heading from GPS
+        if course is not None and heading_weight > 0.0 and fix.speed_mps is not None:
             # weighted sum of heading (wrapped) and speed with the GPS course and speed;
             # with an odometer the speed is its (GPS speed calibrates the odometer's scale)
             heading_var, speed_var = track_var or \
@@ -787,7 +810,7 @@ class RoadFilter:
             speed_state = None if OdometerSpeed in self.profile.measurements else SPEED
             self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.sqrt(heading_var),
                                        math.sqrt(speed_var)).model(s.x),
-                        d.heading_weight, (HEADING, speed_state))
+                        heading_weight, (HEADING, speed_state))
             s.x[HEADING] %= 2.0 * math.pi
         s.gps = GpsUsage(True, d.position_weight, d.reason)
 
