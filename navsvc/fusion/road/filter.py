@@ -667,6 +667,9 @@ class RoadFilter:
     # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
     # position, heading and speed)
     CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
+    GYRO_BIAS_SIGMAS = 3.0  # rules, fuzzy: the gyro (or steering) bias within this many
+    # of its starting sigma (MEMS gyros: within a degree or two a second)
+    ACCEL_BIAS_LIMIT_MPS2 = 0.5  # ... and the forward accelerometer's within this
     HEADING_UNKNOWN_RAD = math.radians(45.0)  # rules, fuzzy: a heading less sure than
     # this takes the next GPS course whole
 
@@ -677,8 +680,9 @@ class RoadFilter:
         ``ekf`` mode, fixes faster than 1 Hz are not independent). A fix past the thesis's
         distance threshold restarts the estimate from GPS when the estimate's own
         uncertainty covers it (it is lost, not the fix: after an outage), when the fixes jump
-        back by about a jump a restart followed (a non-line-of-sight run), or after
-        ``reacquire_after_gated_s`` (the thesis waits 3,000 fixes, for SA-era GPS: fifty
+        back by about a jump a restart followed (a non-line-of-sight run), when the far
+        fixes run away from the estimate (``weighted_diverging_mps``), or after
+        ``weighted_reacquire_after_s`` (the thesis waits 3,000 fixes, for SA-era GPS: fifty
         minutes of dead reckoning at 1 Hz, by which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
@@ -743,8 +747,18 @@ class RoadFilter:
                 s.first_gated_t = None
                 return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
                                    "re-acquired: the fixes jumped back")
-        s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
-        if fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
+        if s.first_gated_t is None:
+            s.first_gated_t, s.gated_offset_m = fix.t, (float(innovation[0]),
+                                                        float(innovation[1]))
+        elif s.gated_offset_m is not None and \
+                math.hypot(innovation[0] - s.gated_offset_m[0],
+                           innovation[1] - s.gated_offset_m[1]) > \
+                max(cfg.jump_spread_m, 4.0 * sigma_m) + \
+                cfg.weighted_diverging_mps * (fix.t - s.first_gated_t):
+            s.first_gated_t = None
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
+                               "away from the estimate (it diverges)", heading_lost=True)
+        if fix.t - s.first_gated_t >= cfg.weighted_reacquire_after_s:
             s.first_gated_t = None
             s.followed_jump = (fix.t, float(innovation[0]), float(innovation[1]))
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
@@ -824,14 +838,19 @@ class RoadFilter:
         pull cannot hold. The Joseph form keeps ``P`` right for this gain."""
         s = self.state
         z, h, H, R = m
+        y = z - h
         PHt = s.P @ H.T
+        S_inv = np.linalg.inv(H @ PHt + R)
         K = np.zeros((N_STATES, len(z)))
-        calibrated = list(self.CALIBRATED)
-        K[calibrated, :] = (PHt @ np.linalg.inv(H @ PHt + R))[calibrated, :]
+        if float(y @ S_inv @ y) <= kalman.gate_limit(len(z)):  # past the gate the error is
+            # not the small one the linearisation assumes (a heading 160 degrees off put
+            # 7 deg/s into the gyro bias): the thesis's weights alone
+            calibrated = list(self.CALIBRATED)
+            K[calibrated, :] = (PHt @ S_inv)[calibrated, :]
         for row, state in enumerate(states):
             if state is not None:
                 K[state, row] = weight
-        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, K)
+        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, y, H, R, K)
         self._bound_calibration()
 
     def _bound_calibration(self) -> None:
@@ -841,6 +860,10 @@ class RoadFilter:
         s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
         limit = cfg.gyro_scale_error_limit
         s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
+        limit = self.GYRO_BIAS_SIGMAS * cfg.initial_gyro_bias_sigma_rps
+        s.x[GYRO_BIAS] = min(max(s.x[GYRO_BIAS], -limit), limit)
+        limit = self.ACCEL_BIAS_LIMIT_MPS2
+        s.x[ACCEL_BIAS] = min(max(s.x[ACCEL_BIAS], -limit), limit)
 
     # --- output --------------------------------------------------------------------------
     def _bias_share_m2(self) -> float:
