@@ -28,7 +28,7 @@ from navsvc.fusion.gnss import gps_problem, gps_sigma_m
 from navsvc.fusion.kalman import Linearised, Measurement
 from navsvc.fusion.profiles import GpsMode
 from navsvc.fusion.road import batch, motion
-from navsvc.fusion.road.fuzzy import fuzzy_weights
+from navsvc.fusion.road.fuzzy import fuzzy_weights, zero_weight
 from navsvc.fusion.road.measurements import (
     STANDSTILL_LEAVES,
     STEERING_LEAVES,
@@ -703,7 +703,7 @@ class RoadFilter:
         else:
             pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, speed, s.gated_fixes)
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
-                GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
+                GpsAction.BLEND if pos_w > zero_weight(cfg.fuzzy) else GpsAction.REJECT
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
         decision = self._divergence_guard(fix, decision, distance, nis, z - h, sigma)
         self._apply_decision(fix, decision, east, north, m, track_var)
