@@ -113,6 +113,8 @@ class RoadState:
     # seconds' fixes
     last_output_t: float | None = None
     gps: GpsUsage | None = None
+    refused_after_gap: bool = False  # rules and fuzzy: the refused run began with the
+    # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump)
 
 
 class RoadFilter:
@@ -681,7 +683,8 @@ class RoadFilter:
         distance threshold restarts the estimate from GPS when the estimate's own
         uncertainty covers it (it is lost, not the fix: after an outage), when the fixes jump
         back by about a jump a restart followed (a non-line-of-sight run), when the far
-        fixes run away from the estimate (``weighted_diverging_mps``), or after
+        fixes run away from the estimate (``weighted_diverging_mps``), when they have been
+        far since they came back after a gap (``weighted_reacquire_after_gap_s``), or after
         ``weighted_reacquire_after_s`` (the thesis waits 3,000 fixes, for SA-era GPS: fifty
         minutes of dead reckoning at 1 Hz, by which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
@@ -705,7 +708,7 @@ class RoadFilter:
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
                 GpsAction.BLEND if pos_w > zero_weight(cfg.fuzzy) else GpsAction.REJECT
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
-        decision = self._divergence_guard(fix, decision, distance, nis, z - h, sigma)
+        decision = self._divergence_guard(fix, decision, distance, nis, z - h, sigma, dt_s)
         self._apply_decision(fix, decision, east, north, m, track_var)
 
     def _weighted_speed(self, fix: GpsFix) -> float:
@@ -730,7 +733,7 @@ class RoadFilter:
         return z, h, H, R
 
     def _divergence_guard(self, fix: GpsFix, d: GpsDecision, distance_m: float, nis: float,
-                          innovation: Array, sigma_m: float) -> GpsDecision:
+                          innovation: Array, sigma_m: float, dt_s: float) -> GpsDecision:
         """The thesis's decision, unless the estimate has diverged (see
         :meth:`_fuse_gps_weighted`)."""
         s, cfg = self.state, self.config
@@ -750,6 +753,7 @@ class RoadFilter:
         if s.first_gated_t is None:
             s.first_gated_t, s.gated_offset_m = fix.t, (float(innovation[0]),
                                                         float(innovation[1]))
+            s.refused_after_gap = dt_s >= cfg.weighted_gap_s
         elif s.gated_offset_m is not None and \
                 math.hypot(innovation[0] - s.gated_offset_m[0],
                            innovation[1] - s.gated_offset_m[1]) > \
@@ -758,6 +762,11 @@ class RoadFilter:
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
                                "away from the estimate (it diverges)", heading_lost=True)
+        if s.refused_after_gap and \
+                fix.t - s.first_gated_t >= cfg.weighted_reacquire_after_gap_s:
+            s.first_gated_t = None
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: far from the "
+                               "fixes since they came back", heading_lost=True)
         if fix.t - s.first_gated_t >= cfg.weighted_reacquire_after_s:
             s.first_gated_t = None
             s.followed_jump = (fix.t, float(innovation[0]), float(innovation[1]))
