@@ -114,7 +114,9 @@ class RoadState:
     last_output_t: float | None = None
     gps: GpsUsage | None = None
     refused_after_gap: bool = False  # rules and fuzzy: the refused run began with the
-    # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump)
+    # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump) ...
+    refused_jump: bool = False  # ... or as a jump away from a close track (one)
+    weighted_distance_m: float | None = None  # rules and fuzzy: the last fix's distance
 
 
 class RoadFilter:
@@ -685,8 +687,10 @@ class RoadFilter:
         back by about a jump a restart followed (a non-line-of-sight run), when the far
         fixes run away from the estimate (``weighted_diverging_mps``), when they have been
         far since they came back after a gap (``weighted_reacquire_after_gap_s``), or after
-        ``weighted_reacquire_after_s`` (the thesis waits 3,000 fixes, for SA-era GPS: fifty
-        minutes of dead reckoning at 1 Hz, by which time the estimate is kilometres off)."""
+        ``weighted_reacquire_after_s`` (``max_jump_s`` when the fixes leapt away from a close
+        track: non-line-of-sight runs last 10-60 s, and a restart onto one is wrong; the
+        thesis waits 3,000 fixes, for SA-era GPS: fifty minutes of dead reckoning at 1 Hz, by
+        which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
         fix, track_var = self._with_velocity(fix, east, north)
@@ -738,6 +742,7 @@ class RoadFilter:
         :meth:`_fuse_gps_weighted`)."""
         s, cfg = self.state, self.config
         far = distance_m > max(cfg.rules.max_distance_m, 5.0 * sigma_m)
+        previous, s.weighted_distance_m = s.weighted_distance_m, distance_m
         if not far:
             s.first_gated_t = None
             return d
@@ -754,6 +759,8 @@ class RoadFilter:
             s.first_gated_t, s.gated_offset_m = fix.t, (float(innovation[0]),
                                                         float(innovation[1]))
             s.refused_after_gap = dt_s >= cfg.weighted_gap_s
+            s.refused_jump = dt_s <= cfg.track_gap_s and previous is not None and \
+                previous <= 0.5 * cfg.rules.max_distance_m
         elif s.gated_offset_m is not None and \
                 math.hypot(innovation[0] - s.gated_offset_m[0],
                            innovation[1] - s.gated_offset_m[1]) > \
@@ -767,7 +774,8 @@ class RoadFilter:
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: far from the "
                                "fixes since they came back", heading_lost=True)
-        if fix.t - s.first_gated_t >= cfg.weighted_reacquire_after_s:
+        if fix.t - s.first_gated_t >= (cfg.max_jump_s if s.refused_jump
+                                       else cfg.weighted_reacquire_after_s):
             s.first_gated_t = None
             s.followed_jump = (fix.t, float(innovation[0]), float(innovation[1]))
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
