@@ -78,6 +78,15 @@ class FusionConfig:
     initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas apart
     initial_heading_max_baseline_s: float = 10.0  # ... and at most this long apart
     initial_heading_max_turn_rad: float = math.radians(10.0)  # ... with less turn between
+    weighted_reacquire_after_s: float = 30.0  # rules, fuzzy: fixes far from the estimate
+    # this long restart it from GPS (a restart onto a non-line-of-sight run is undone when
+    # the fixes jump back)
+    weighted_gap_s: float = 10.0  # rules, fuzzy: no fix this long is a GPS gap ...
+    weighted_reacquire_after_gap_s: float = 3.0  # ... and fixes far from the estimate this
+    # long since they came back restart it from GPS (it drifted in the gap)
+    weighted_diverging_mps: float = 1.0  # rules, fuzzy: refused fixes whose offset from the
+    # estimate changes faster than this (beyond jump_spread_m or 4 sigma) say the estimate
+    # diverges (a non-line-of-sight run's offset stays put): restart from GPS at once
     velocity_baseline_s: float = 5.0  # rules, fuzzy: course and speed from fixes at most
     # this far back when the receiver sends none (with the start-up heading's conditions)
     initial_speed_sigma_mps: float = 5.0  # speed at start-up when nothing measured it

@@ -29,7 +29,7 @@ from navsvc.fusion.gnss import gps_problem, gps_sigma_m
 from navsvc.fusion.kalman import Linearised, Measurement
 from navsvc.fusion.profiles import GpsMode
 from navsvc.fusion.road import batch, motion
-from navsvc.fusion.road.fuzzy import fuzzy_weights
+from navsvc.fusion.road.fuzzy import fuzzy_weights, zero_weight
 from navsvc.fusion.road.measurements import (
     STANDSTILL_LEAVES,
     STEERING_LEAVES,
@@ -117,10 +117,15 @@ class RoadState:
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     gps_velocity_nis_mean: float = 2.0  # running mean of the GPS velocity's NIS
     last_gps_t: float | None = None
-    recent_fixes: tuple[tuple[float, float, float, float], ...] = ()  # rules and fuzzy:
-    # (t, east, north, heading of the estimate) of the last few seconds' fixes
+    recent_fixes: tuple[tuple[float, float, float, float, float, float], ...] = ()  # rules
+    # and fuzzy: (t, east, north, heading, east, north of the estimate) of the last few
+    # seconds' fixes
     last_output_t: float | None = None
     gps: GpsUsage | None = None
+    refused_after_gap: bool = False  # rules and fuzzy: the refused run began with the
+    # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump) ...
+    refused_jump: bool = False  # ... or as a jump away from a close track (one)
+    weighted_distance_m: float | None = None  # rules and fuzzy: the last fix's distance
 
 
 class RoadDistance(Protocol):
@@ -760,90 +765,219 @@ class RoadFilter:
             _reset_variance(s.P, SPEED, 1.0)
             s.gated_courses = 0
 
+    # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
+    # position, heading and speed)
+    CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
+    GYRO_BIAS_SIGMAS = 3.0  # rules, fuzzy: the gyro (or steering) bias within this many
+    # of its starting sigma (MEMS gyros: within a degree or two a second)
+    ACCEL_BIAS_LIMIT_MPS2 = 0.5  # ... and the forward accelerometer's within this
+    HEADING_UNKNOWN_RAD = math.radians(45.0)  # rules, fuzzy: a heading less sure than
+    # this takes the next GPS course whole
+
     def _fuse_gps_weighted(self, fix: GpsFix, dt_s: float) -> None:
-        """The thesis's rules or fuzzy weights; fixes farther than the rules' distance
-        threshold (and 5 sigma) for ``reacquire_after_gated_s`` restart the estimate from
-        GPS (the thesis waits 3,000 fixes, for SA-era GPS: fifty minutes of dead reckoning
-        at 1 Hz, by which time the estimate is kilometres off)."""
+        """The thesis's rules or fuzzy weights decide position, heading and speed; the same
+        fix calibrates the sensor-error states by a Kalman gain (:meth:`_blend`), and the
+        covariance is kept honest (the slowly changing GPS error is modelled as in the
+        ``ekf`` mode, fixes faster than 1 Hz are not independent). A fix past the thesis's
+        distance threshold restarts the estimate from GPS when the estimate's own
+        uncertainty covers it (it is lost, not the fix: after an outage), when the fixes jump
+        back by about a jump a restart followed (a non-line-of-sight run), when the far
+        fixes run away from the estimate (``weighted_diverging_mps``), when they have been
+        far since they came back after a gap (``weighted_reacquire_after_gap_s``), or after
+        ``weighted_reacquire_after_s`` (``max_jump_s`` when the fixes leapt away from a close
+        track: non-line-of-sight runs last 10-60 s, and a restart onto one is wrong; the
+        thesis waits 3,000 fixes, for SA-era GPS: fifty minutes of dead reckoning at 1 Hz, by
+        which time the estimate is kilometres off)."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        fix = self._with_velocity(fix, east, north)
+        fix, track_var = self._with_velocity(fix, east, north)
+        sigma = self._sigma_m(fix)
+        white, s.gps_bias_sigma_m = self._split_sigma(sigma)
+        self._propagate_gps_bias(fix.t)
+        fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
+        m = self._weighted_position(east, north, white * math.sqrt(fixes_per_s))
+        z, h, H, R = m
+        nis = kalman.nis(s.P, H, R, z - h)
         distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
+        speed = self._weighted_speed(fix)
         if cfg.gps_mode == GpsMode.RULES:
             decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
-                                    distance_m=distance, gps_speed_mps=fix.speed_mps,
+                                    distance_m=distance, gps_speed_mps=speed,
                                     rejected_fixes=s.gated_fixes, dt_s=dt_s)
         else:
-            pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, fix.speed_mps or 0.0,
-                                          s.gated_fixes)
+            pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, speed, s.gated_fixes)
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
-                GpsAction.BLEND if pos_w > 0.0 else GpsAction.REJECT
+                GpsAction.BLEND if pos_w > zero_weight(cfg.fuzzy) else GpsAction.REJECT
             decision = GpsDecision(action, pos_w, head_w, f"fuzzy weight {pos_w:.3f}")
-        if distance > max(cfg.rules.max_distance_m, 5.0 * self._sigma_m(fix)):
-            s.first_gated_t = fix.t if s.first_gated_t is None else s.first_gated_t
-            if fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
-                decision = GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
-                                       "re-acquiring: far from the fixes too long")
-                s.first_gated_t = None
-        else:
-            s.first_gated_t = None
-        self._apply_decision(fix, decision, east, north)
+        decision = self._divergence_guard(fix, decision, distance, nis, z - h, sigma, dt_s)
+        self._apply_decision(fix, decision, east, north, m, track_var)
 
-    def _with_velocity(self, fix: GpsFix, east: float, north: float) -> GpsFix:
+    def _weighted_speed(self, fix: GpsFix) -> float:
+        """The speed the rules and fuzzy sets take: the GPS speed; from a receiver that
+        sends none, the odometer's, else the estimate's (not zero: "stopped" ignored the
+        heading of a car driving at 12 m/s)."""
+        if fix.speed_mps is not None:
+            return fix.speed_mps
+        measured = self._measured_speed(fix)
+        return measured[0] if measured is not None else abs(float(self.state.x[SPEED]))
+
+    def _weighted_position(self, east: float, north: float, sigma_m: float) -> Linearised:
+        """The fix as the weighted sums take it: where the estimate says the fix should lie
+        (the latency's drive back along the heading; the latency a known constant: these
+        modes do not learn it). The thesis pulls toward the fix itself: the GPS bias states
+        hold no value here (map feedback may have moved them; they are zeroed) and carry only
+        the slowly changing part of the fix's error, in the covariance."""
+        s = self.state
+        s.x[list(GPS_BIAS)] = 0.0
+        z, h, H, R = GpsPosition(east, north, sigma_m).model(s.x)
+        H[:, GPS_LATENCY] = 0.0
+        return z, h, H, R
+
+    def _divergence_guard(self, fix: GpsFix, d: GpsDecision, distance_m: float, nis: float,
+                          innovation: Array, sigma_m: float, dt_s: float) -> GpsDecision:
+        """The thesis's decision, unless the estimate has diverged (see
+        :meth:`_fuse_gps_weighted`)."""
+        s, cfg = self.state, self.config
+        far = distance_m > max(cfg.rules.max_distance_m, 5.0 * sigma_m)
+        previous, s.weighted_distance_m = s.weighted_distance_m, distance_m
+        if not far:
+            s.first_gated_t = None
+            return d
+        if d.action == GpsAction.REJECT:
+            if math.isfinite(nis) and nis <= kalman.gate_limit(2):
+                s.first_gated_t = None
+                return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the "
+                                   "estimate's own uncertainty covers the fix")
+            if self._jumps_back(fix.t, innovation, sigma_m):
+                s.first_gated_t = None
+                return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
+                                   "re-acquired: the fixes jumped back")
+        if s.first_gated_t is None:
+            s.first_gated_t, s.gated_offset_m = fix.t, (float(innovation[0]),
+                                                        float(innovation[1]))
+            s.refused_after_gap = dt_s >= cfg.weighted_gap_s
+            s.refused_jump = dt_s <= cfg.track_gap_s and previous is not None and \
+                previous <= 0.5 * cfg.rules.max_distance_m
+        elif s.gated_offset_m is not None and \
+                math.hypot(innovation[0] - s.gated_offset_m[0],
+                           innovation[1] - s.gated_offset_m[1]) > \
+                max(cfg.jump_spread_m, 4.0 * sigma_m) + \
+                cfg.weighted_diverging_mps * (fix.t - s.first_gated_t):
+            s.first_gated_t = None
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
+                               "away from the estimate (it diverges)", heading_lost=True)
+        if s.refused_after_gap and \
+                fix.t - s.first_gated_t >= cfg.weighted_reacquire_after_gap_s:
+            s.first_gated_t = None
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: far from the "
+                               "fixes since they came back", heading_lost=True)
+        if fix.t - s.first_gated_t >= (cfg.max_jump_s if s.refused_jump
+                                       else cfg.weighted_reacquire_after_s):
+            s.first_gated_t = None
+            s.followed_jump = (fix.t, float(innovation[0]), float(innovation[1]))
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
+                               "re-acquiring: far from the fixes too long", heading_lost=True)
+        return d
+
+    def _with_velocity(self, fix: GpsFix, east: float, north: float
+                       ) -> tuple[GpsFix, tuple[float, float] | None]:
         """The fix with a course and speed from the track of recent fixes when the receiver
         sends none (the rules and fuzzy modes correct heading and speed only from a GPS
         course; without one they ran to hundreds of metres): from the oldest fix of the last
         ``velocity_baseline_s`` that lies far enough back against the fixes' error, with the
-        filter's heading turned by less than ``initial_heading_max_turn_rad`` since."""
+        filter's heading turned by less than ``initial_heading_max_turn_rad`` since. Also
+        the variances of that course and speed (None for the receiver's own)."""
         s, cfg = self.state, self.config
         recent = [f for f in s.recent_fixes if fix.t - f[0] <= cfg.velocity_baseline_s]
-        s.recent_fixes = (*recent, (fix.t, east, north, float(s.x[HEADING])))
+        s.recent_fixes = (*recent, (fix.t, east, north, float(s.x[HEADING]),
+                                    float(s.x[X_M]), float(s.x[Y_M])))
         if fix.heading_rad is not None and fix.speed_mps is not None:
-            return fix
+            return fix, None
         spread = math.sqrt(2.0) * self._sigma_m(fix)
-        for t0, e0, n0, heading0 in recent:
+        for t0, e0, n0, heading0, x0, y0 in recent:
             moved = math.hypot(east - e0, north - n0)
             turned = abs(math.remainder(float(s.x[HEADING]) - heading0, 2.0 * math.pi))
+            driven = math.hypot(s.x[X_M] - x0, s.x[Y_M] - y0)
             if fix.t > t0 and turned < cfg.initial_heading_max_turn_rad and \
                     moved >= max(cfg.initial_heading_min_move_m,
-                                 cfg.initial_heading_min_move_sigmas * spread):
-                return replace(fix, speed_mps=moved / (fix.t - t0),
-                               heading_rad=bearing_rad(e0, n0, east, north))
-        return fix
+                                 cfg.initial_heading_min_move_sigmas * spread) and \
+                    (self.profile.gps_alone or
+                     abs(moved - driven) <= 3.0 * spread + 0.1 * driven):
+                # the fixes moved as far as dead reckoning drove (a standing car's fixes
+                # wandered 30 m in 4 s in a street canyon, and their line became the heading)
+                return (replace(fix, speed_mps=moved / (fix.t - t0),
+                                heading_rad=bearing_rad(e0, n0, east, north)),
+                        ((spread / moved) ** 2, (spread / (fix.t - t0)) ** 2))
+        return fix, None
 
-    def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float) -> None:
-        s = self.state
+    def _apply_decision(self, fix: GpsFix, d: GpsDecision, east: float, north: float,
+                        m: Linearised, track_var: tuple[float, float] | None) -> None:
+        s, cfg = self.state, self.config
         if d.action == GpsAction.REJECT:
             s.gated_fixes += 1
             s.gps = GpsUsage(False, 0.0, d.reason)
             return
         s.gated_fixes = 0
         if d.action in (GpsAction.REINITIALIZE, GpsAction.INITIALIZE):
-            self._reset_from_gps(fix, east, north, self._gps_course(fix),
-                                 self._measured_speed(fix))
+            course = self._gps_course(fix)
+            self._reset_from_gps(fix, east, north, course, self._measured_speed(fix))
+            if course is None and d.heading_lost:  # unknown until a course comes
+                _reset_variance(s.P, HEADING, math.pi ** 2 / 3.0)
             s.gps = GpsUsage(True, 1.0, d.reason)
             return
-        self._blend(GpsPosition(east, north, self._sigma_m(fix)).model(s.x), d.position_weight,
-                    (X_M, Y_M))
+        self._blend(m, d.position_weight, (X_M, Y_M))
         course = self._gps_course(fix)
-        if course is not None and d.heading_weight > 0.0 and fix.speed_mps is not None:
-            # weighted sum of heading (wrapped) and speed with the GPS course and speed
-            self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.radians(5.0),
-                                       self.config.gps_velocity_sigma_mps).model(s.x),
-                        d.heading_weight, (HEADING, SPEED))
+        heading_weight = d.heading_weight
+        if s.P[HEADING, HEADING] > self.HEADING_UNKNOWN_RAD ** 2:
+            heading_weight = 1.0  # the thesis's initialisation of the heading from GPS
+        if course is not None and heading_weight > 0.0 and fix.speed_mps is not None:
+            # weighted sum of heading (wrapped) and speed with the GPS course and speed;
+            # with an odometer the speed is its (GPS speed calibrates the odometer's scale)
+            heading_var, speed_var = track_var or \
+                (course[1], cfg.gps_velocity_sigma_mps ** 2)
+            speed_state = None if OdometerSpeed in self.profile.measurements else SPEED
+            self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.sqrt(heading_var),
+                                       math.sqrt(speed_var)).model(s.x),
+                        heading_weight, (HEADING, speed_state))
             s.x[HEADING] %= 2.0 * math.pi
         s.gps = GpsUsage(True, d.position_weight, d.reason)
 
-    def _blend(self, m: Linearised, weight: float, states: tuple[int, ...]) -> None:
+    def _blend(self, m: Linearised, weight: float, states: tuple[int | None, ...]) -> None:
         """The thesis's weighted sum: a fixed gain of ``weight`` from each row of the
-        measurement to the state it measures (``states``, in row order), none to any other
-        (a GPS position's Jacobian reaches speed, heading, latency and bias too)."""
+        measurement to the state it measures (``states``, in row order; None: to none), none
+        to any other state the thesis keeps (a GPS position's Jacobian reaches speed,
+        heading, latency and bias too). The sensor-error states (``CALIBRATED``), which
+        the thesis does not have, take their Kalman gain from the same measurement: a gyro
+        bias or an odometer scale left alone integrated into drift that a 0.04/s position
+        pull cannot hold. The Joseph form keeps ``P`` right for this gain."""
         s = self.state
         z, h, H, R = m
+        y = z - h
+        PHt = s.P @ H.T
+        S_inv = np.linalg.inv(H @ PHt + R)
         K = np.zeros((N_STATES, len(z)))
+        if float(y @ S_inv @ y) <= kalman.gate_limit(len(z)):  # past the gate the error is
+            # not the small one the linearisation assumes (a heading 160 degrees off put
+            # 7 deg/s into the gyro bias): the thesis's weights alone
+            calibrated = list(self.CALIBRATED)
+            K[calibrated, :] = (PHt @ S_inv)[calibrated, :]
         for row, state in enumerate(states):
-            K[state, row] = weight
-        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, z - h, H, R, K)
+            if state is not None:
+                K[state, row] = weight
+        s.x, s.P = kalman.fixed_gain_update(s.x, s.P, y, H, R, K)
+        self._bound_calibration()
+
+    def _bound_calibration(self) -> None:
+        """The sensor-error states within the bounds the ``ekf`` mode keeps them in."""
+        s, cfg = self.state, self.config
+        low, high = cfg.odo_scale_limits
+        s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
+        limit = cfg.gyro_scale_error_limit
+        s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
+        limit = self.GYRO_BIAS_SIGMAS * cfg.initial_gyro_bias_sigma_rps
+        s.x[GYRO_BIAS] = min(max(s.x[GYRO_BIAS], -limit), limit)
+        limit = self.ACCEL_BIAS_LIMIT_MPS2
+        s.x[ACCEL_BIAS] = min(max(s.x[ACCEL_BIAS], -limit), limit)
 
     # --- output --------------------------------------------------------------------------
     def _bias_share_m2(self) -> float:

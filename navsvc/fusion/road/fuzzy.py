@@ -103,3 +103,10 @@ def fuzzy_weights(sets: FuzzySets, distance_m: float, velocity_mps: float,
     strengths = rule_strengths(sets, distance_m, velocity_mps, num_no_good)
     return (centroid(strengths, sets.position_weight),
             centroid(strengths, sets.heading_weight))
+
+
+def zero_weight(sets: FuzzySets) -> float:
+    """The largest position weight that is the ZERO set's: the fix is not used (its centroid
+    is 0.0005, not 0; taken as a blend, a fix 260 m away never counted as rejected and the
+    NumNoGood recovery never came)."""
+    return sets.position_weight["ZERO"][3]

@@ -25,6 +25,7 @@ class GpsDecision:
     position_weight: float  # per fix, in [0, 1]
     heading_weight: float
     reason: str
+    heading_lost: bool = False  # a restart of an estimate that was lost: its heading too
 
 
 @dataclass(frozen=True)
