@@ -792,6 +792,8 @@ class RoadFilter:
         east, north = self._local(fix)
         fix, track_var = self._with_velocity(fix, east, north)
         sigma = self._sigma_m(fix)
+        self._learn_gps_error_from_map(east, north, min(dt_s, 1.0))
+        s.gps_unseen_var_m2 = self._unseen_gps_var_m2(sigma)
         white, s.gps_bias_sigma_m = self._split_sigma(sigma)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
