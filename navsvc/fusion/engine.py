@@ -21,12 +21,13 @@ from typing import Any, Protocol
 from navsvc.errors import ConfigError
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
+from navsvc.fusion.gnss import RoadDistance
 from navsvc.fusion.ins.strapdown import StrapdownFilter, StrapdownOptions
 from navsvc.fusion.kalman import Measurement
 from navsvc.fusion.profiles import FilterKind
 from navsvc.fusion.reorder import ReorderWindow, Replayable, S
 from navsvc.fusion.road.batch import SampleRun, T
-from navsvc.fusion.road.filter import RoadDistance, RoadFilter
+from navsvc.fusion.road.filter import RoadFilter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, Packet
 from roadgraph.geometry import LocalFrame
@@ -57,13 +58,14 @@ class FusionEngine:
                  frame: LocalFrame | None = None,
                  ins: StrapdownOptions = DEFAULT_INS,
                  road_distance: RoadDistance | None = None) -> None:
-        """``road_distance``: the map's fit of a position (in ``frame``), with which the road
-        filter tells which of two GPS tracks lies on the roads."""
+        """``road_distance``: the map's fit of a position (in ``frame``): the road filter
+        tells by it which of two GPS tracks lies on the roads, and both filters the fixes'
+        error the map sees (:class:`navsvc.fusion.gnss.MapSeenError`)."""
         self.config = config
         self.profile = config.profile
         road = self.profile.filter == FilterKind.ROAD
         self.filter: Filter[Any] = RoadFilter(config, frame, road_distance) if road \
-            else StrapdownFilter(config, frame, ins)
+            else StrapdownFilter(config, frame, ins, road_distance)
         self.window: ReorderWindow[Any] = ReorderWindow(config.reorder_window_s)
 
     @property

@@ -6,6 +6,10 @@ receiver says so, there is no 2D/3D fix, fewer than 3 satellites are visible, or
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
 from navsvc.types import GpsFix, GpsFixType
 
 # A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
@@ -36,3 +40,40 @@ def gps_sigma_m(fix: GpsFix, uere_m: float, default_sigma_m: float) -> float:
     if fix.fix in _FIX_SIGMA_M:
         return _FIX_SIGMA_M[fix.fix]
     return default_sigma_m
+
+
+class RoadDistance(Protocol):
+    """How far a position is from the nearest road along a heading (the map's fit,
+    :meth:`roadgraph.RoadGraph.distance_to_road_m`), for the filters to ask the map."""
+
+    def __call__(self, x_m: float, y_m: float, heading_rad: float, radius_m: float,
+                 max_bearing_diff_rad: float) -> float: ...
+
+
+@dataclass(frozen=True)
+class MapSeenError:
+    """The fixes' error as the map sees it. Their slowly changing error moves the estimate
+    with them, so their NIS does not see it; the map does: a fix's distance from the road
+    the car drives along is its error across that road. This is the running mean square of
+    that distance over ``memory_s``, winsorised at 3 rms (a non-line-of-sight run is the
+    jump test's business, not an error level)."""
+
+    learnt_s: float = 0.0  # seconds of driving learnt (at most the memory)
+    mean_sq_m2: float = 0.0
+
+    def updated(self, distance_m: float, dt_s: float, memory_s: float) -> MapSeenError:
+        """With one more fix, ``dt_s`` after the previous one."""
+        learnt_s = min(self.learnt_s + dt_s, memory_s)
+        if learnt_s <= 0.0:
+            return self
+        d = distance_m if self.learnt_s <= 0.0 else \
+            min(distance_m, 3.0 * math.sqrt(max(self.mean_sq_m2, 1.0)))
+        return MapSeenError(learnt_s, self.mean_sq_m2 + (d * d - self.mean_sq_m2) *
+                            dt_s / learnt_s)
+
+    def unseen_var_m2(self, sigma_m: float, memory_s: float, max_sigma_m: float) -> float:
+        """How much more variance the fixes' error has (at most ``max_sigma_m`` squared)
+        than the sigma a filter weighs them by; zero until learnt over half the memory."""
+        if self.learnt_s < memory_s / 2.0:
+            return 0.0
+        return max(min(self.mean_sq_m2, max_sigma_m ** 2) - sigma_m ** 2, 0.0)

@@ -7,7 +7,8 @@ import math
 import numpy as np
 
 from navsvc.fusion import FusionConfig, GpsMode
-from navsvc.fusion.road.filter import RoadDistance, RoadFilter
+from navsvc.fusion.gnss import RoadDistance
+from navsvc.fusion.road.filter import RoadFilter
 from navsvc.fusion.road.motion import (
     GPS_BIAS_E,
     GPS_BIAS_N,

@@ -29,7 +29,7 @@ from navsvc.errors import ConfigError, PacketError, RejectReason
 from navsvc.fusion import odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
-from navsvc.fusion.gnss import gps_problem, gps_sigma_m
+from navsvc.fusion.gnss import MapSeenError, RoadDistance, gps_problem, gps_sigma_m
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
 from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition, GnssVelocity, Rest
@@ -87,15 +87,20 @@ class StrapdownState:
     odo_speed: float | None = None  # latest raw wheel speed
     odo_scale: float = 1.0
     gps_bias_var_m2: float = 0.0  # the slowly changing part of the latest fix's variance
+    last_fix_t: float | None = None
+    gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
+    gps_unseen_var_m2: float = 0.0  # what of it the fixes' sigma does not hold (reported)
 
 
 class StrapdownFilter:
     """One vehicle's strapdown INS with GPS: ``apply`` packets in time order."""
 
     def __init__(self, config: FusionConfig, frame: LocalFrame | None = None,
-                 options: StrapdownOptions = StrapdownOptions()) -> None:
+                 options: StrapdownOptions = StrapdownOptions(),
+                 road_distance: RoadDistance | None = None) -> None:
         self.config = config
         self.frame = frame
+        self.road_distance = road_distance
         self.options = options
         self._mount = euler_to_dcm(*np.radians(options.mounting_rpy_deg)) @ FLU_TO_FRD
         self.state = StrapdownState(still_f=deque(maxlen=options.level_window))
@@ -264,6 +269,7 @@ class StrapdownFilter:
         self._calibrate_odometer(fix)
         sigma = self._sigma_m(fix)
         s.gps_bias_var_m2 = (self.config.gps_bias_share * sigma) ** 2
+        self._learn_gps_error_from_map(fix, sigma)
         if fix.alt_m is not None:
             s.height_m = fix.alt_m
         # without a GPS height, the last one known (loosely) keeps the vertical channel bounded
@@ -276,6 +282,23 @@ class StrapdownFilter:
             GpsUsage(False, 0.0, "gated: innovation too large")
         s.last_output_t = fix.t
         return [self._estimate()]
+
+    def _learn_gps_error_from_map(self, fix: GpsFix, sigma_m: float) -> None:
+        """The fixes' error as the map sees it (:class:`MapSeenError`), while moving and
+        with a map, as the road filter learns it; reported in the covariance beyond the
+        fixes' sigma, as the bias share is."""
+        s, cfg = self.state, self.config
+        dt_s = 1.0 if s.last_fix_t is None else min(fix.t - s.last_fix_t, 1.0)
+        s.last_fix_t = fix.t
+        if self.road_distance is not None and s.ins is not None and self.frame is not None:
+            n = s.ins.output()
+            if math.hypot(n.v_ned[0], n.v_ned[1]) >= 1.0:
+                east, north = self.frame.to_local(fix.lon_deg, fix.lat_deg)
+                d = self.road_distance(east, north, dcm_to_euler(n.c_bn)[2],
+                                       cfg.road_fit_radius_m, cfg.road_fit_max_bearing_rad)
+                s.gps_map_error = s.gps_map_error.updated(d, dt_s, cfg.gps_map_memory_s)
+        s.gps_unseen_var_m2 = s.gps_map_error.unseen_var_m2(sigma_m, cfg.gps_map_memory_s,
+                                                            cfg.gps_map_max_sigma_m)
 
     def _try_align(self, fix: GpsFix) -> None:
         """Start the INS once the GPS course gives a heading."""
@@ -312,7 +335,7 @@ class StrapdownFilter:
         # (east, north) = (x, y); the INS takes fixes as independent, so the error that
         # averaging them does not remove (the road filter's bias states) is added here: it
         # reported 1-2 m while the fixes' correlated error kept it 5 m off
-        bias = self.state.gps_bias_var_m2
+        bias = self.state.gps_bias_var_m2 + self.state.gps_unseen_var_m2
         cov = np.array([[p[1, 1] + bias, p[1, 0]], [p[0, 1], p[0, 0] + bias]])
         yaw_rate = 0.0 if rates is None else float(
             (n.c_bn @ (rates[0] - n.gyro_bias_rps))[2])

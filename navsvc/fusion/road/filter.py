@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Protocol
 
 import numpy as np
 
 from navsvc.fusion import kalman, odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
-from navsvc.fusion.gnss import gps_problem, gps_sigma_m
+from navsvc.fusion.gnss import MapSeenError, RoadDistance, gps_problem, gps_sigma_m
 from navsvc.fusion.kalman import Linearised, Measurement
 from navsvc.fusion.profiles import GpsMode
 from navsvc.fusion.road import batch, motion
@@ -108,8 +107,7 @@ class RoadState:
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
-    gps_map_sq_mean: tuple[float, float] = (0.0, 0.0)  # (seconds learnt, running mean of the
-    # squared distance of the fixes from the roads along the heading)
+    gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
     gps_unseen_var_m2: float = 0.0  # of that, what the fixes' sigma does not hold: an error
     # the estimate shares with the fixes, reported in its covariance (not filtered on)
     gps_bias_t: float | None = None  # time of the GPS bias states
@@ -126,14 +124,6 @@ class RoadState:
     # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump) ...
     refused_jump: bool = False  # ... or as a jump away from a close track (one)
     weighted_distance_m: float | None = None  # rules and fuzzy: the last fix's distance
-
-
-class RoadDistance(Protocol):
-    """How far a position is from the nearest road along a heading (the map's fit,
-    :meth:`roadgraph.RoadGraph.distance_to_road_m`)."""
-
-    def __call__(self, x_m: float, y_m: float, heading_rad: float, radius_m: float,
-                 max_bearing_diff_rad: float) -> float: ...
 
 
 class RoadFilter:
@@ -688,19 +678,14 @@ class RoadFilter:
 
     def _unseen_gps_var_m2(self, sigma_m: float) -> float:
         """How much more variance the fixes' error has, by their distance from the roads
-        (:meth:`_learn_gps_error_from_map`, at most ``gps_map_max_sigma_m``), than the
-        sigma the filter weighs them by; zero until learnt over half its memory."""
-        learnt_s, map_sq = self.state.gps_map_sq_mean
-        if learnt_s < self.config.gps_map_memory_s / 2.0:
-            return 0.0
-        return max(min(map_sq, self.config.gps_map_max_sigma_m ** 2) - sigma_m ** 2, 0.0)
+        (:meth:`_learn_gps_error_from_map`), than the sigma the filter weighs them by."""
+        cfg = self.config
+        return self.state.gps_map_error.unseen_var_m2(sigma_m, cfg.gps_map_memory_s,
+                                                      cfg.gps_map_max_sigma_m)
 
     def _learn_gps_error_from_map(self, east: float, north: float, dt_s: float) -> None:
-        """The fixes' slowly changing error moves the estimate with them, so their NIS does
-        not see it; the map does: a fix's distance from the road the car drives along is
-        its error across that road. Its running mean square (over ``gps_map_memory_s``,
-        winsorised at 3 rms) measures how far off the fixes are. While moving, and on an
-        initialised filter.
+        """The fixes' error as the map sees it (:class:`MapSeenError`), while moving, on an
+        initialised filter with a map.
 
         Only the reported covariance takes it (``gps_unseen_var_m2``, at most
         ``gps_map_max_sigma_m``): as a floor under the sigma the filter weighs the fixes by,
@@ -711,11 +696,7 @@ class RoadFilter:
             return
         d = self.road_distance(east, north, float(s.x[HEADING]), cfg.road_fit_radius_m,
                                cfg.road_fit_max_bearing_rad)
-        learnt_s, mean = s.gps_map_sq_mean
-        if learnt_s > 0.0:  # winsorised: a non-line-of-sight run is the jump test's
-            d = min(d, 3.0 * math.sqrt(max(mean, 1.0)))
-        learnt_s = min(learnt_s + dt_s, cfg.gps_map_memory_s)
-        s.gps_map_sq_mean = (learnt_s, mean + (d * d - mean) * dt_s / learnt_s)
+        s.gps_map_error = s.gps_map_error.updated(d, dt_s, cfg.gps_map_memory_s)
 
     def _refused_fix(self, fix: GpsFix, east: float, north: float, m: Linearised,
                      nis: float, dt_s: float) -> None:

@@ -1,0 +1,44 @@
+"""The fixes' error as the map sees it (navsvc.fusion.gnss.MapSeenError): a running mean
+square of their distance from the roads, winsorised, and what of it a sigma leaves out."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from navsvc.fusion.gnss import MapSeenError
+
+MEMORY_S = 60.0
+
+
+@given(st.lists(st.tuples(st.floats(0.0, 30.0), st.floats(0.0, 2.0)), max_size=200))
+def test_the_mean_square_stays_within_what_was_seen(fixes: list[tuple[float, float]]) -> None:
+    seen = MapSeenError()
+    for distance, dt in fixes:
+        seen = seen.updated(distance, dt, MEMORY_S)
+        assert 0.0 <= seen.learnt_s <= MEMORY_S
+    largest = max((d for d, dt in fixes), default=0.0)
+    assert 0.0 <= seen.mean_sq_m2 <= largest ** 2 + 1e-9
+
+
+def test_a_steady_error_is_learnt_and_what_the_sigma_misses_is_reported() -> None:
+    seen = MapSeenError()
+    for _ in range(29):
+        seen = seen.updated(8.0, 1.0, MEMORY_S)
+    assert seen.unseen_var_m2(1.0, MEMORY_S, 10.0) == 0.0  # not half the memory yet
+    seen = seen.updated(8.0, 1.0, MEMORY_S)
+    assert math.isclose(seen.mean_sq_m2, 64.0)
+    assert math.isclose(seen.unseen_var_m2(1.0, MEMORY_S, 10.0), 63.0)
+    assert seen.unseen_var_m2(9.0, MEMORY_S, 10.0) == 0.0  # the sigma holds it already
+    assert math.isclose(seen.unseen_var_m2(1.0, MEMORY_S, 5.0), 24.0)  # at most 5 m
+
+
+def test_a_far_fix_counts_at_three_rms_and_a_repeated_time_not_at_all() -> None:
+    seen = MapSeenError()
+    for _ in range(60):
+        seen = seen.updated(2.0, 1.0, MEMORY_S)
+    assert seen.updated(2.0, 0.0, MEMORY_S) == seen
+    far = seen.updated(30.0, 1.0, MEMORY_S)  # a non-line-of-sight fix: counted as 6 m
+    assert math.isclose(far.mean_sq_m2, 4.0 + (36.0 - 4.0) / 60.0)
