@@ -14,7 +14,7 @@ import math
 import os
 import sys
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -170,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     sd.add_argument("-o", "--output", type=Path, metavar="OUT.jsonl",
                     help="where to write matched positions (default: only a summary)")
     sd.add_argument("--vehicle-id", default="navsvc-send", help="the session's vehicle id")
-    sd.add_argument("--batch", type=_batch_arg, default=10,
+    sd.add_argument("--batch", type=_whole_number_arg(1, MAX_BATCH), default=10,
                     help=f"packets per message, 1 to {MAX_BATCH} (default 10)")
     sd.add_argument("--keep", action="store_true",
                     help="leave the session open at the end (default: close it, which drops "
@@ -211,9 +211,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_worker_options(sv: argparse.ArgumentParser) -> None:
     """`serve`'s options for several workers behind HAProxy (navsvc.cluster)."""
-    sv.add_argument("--workers", type=_count_arg, default=os.environ.get("NAVSVC_WORKERS", "1"),
-                    metavar="N", help="worker processes, each with its own sessions and trip "
-                    "log (<triplog>.w<k>), behind HAProxy on --host:--port, which routes on the "
+    sv.add_argument("--workers", type=_whole_number_arg(1, 64),
+                    default=os.environ.get("NAVSVC_WORKERS", "1"), metavar="N",
+                    help="worker processes, each with its own sessions and trip log "
+                    "(<triplog>.w<k>), behind HAProxy on --host:--port, which routes on the "
                     "session id; a worker that dies is started again and restores its "
                     "sessions (default: $NAVSVC_WORKERS or 1: one process, no balancer)")
     sv.add_argument("--balancer", action="store_true",
@@ -226,14 +227,17 @@ def _add_worker_options(sv: argparse.ArgumentParser) -> None:
                     "--workers N sets it for its workers)")
 
 
-def _count_arg(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if not 1 <= value <= 64:
-        raise argparse.ArgumentTypeError(f"{text}: must be from 1 to 64")
-    return value
+def _whole_number_arg(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: a whole number from ``low`` to ``high``, else a message saying so."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text}: must be from {low} to {high}")
+        return value
+    return parse
 
 
 MAX_BATCH = 1000  # the service's default NAVSVC_MAX_BATCH_PACKETS
@@ -244,16 +248,6 @@ MODES_HELP = (
     "gps_only (GPS alone, constant turn rate and velocity), strapdown (a full 6-axis IMU: "
     "strapdown INS/GNSS). GPS fusion modes: ekf (Kalman update, gated and adaptive), rules "
     "(the thesis's rule-based weighting), fuzzy (the thesis's fuzzy weighting).")
-
-
-def _batch_arg(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if not 1 <= value <= MAX_BATCH:
-        raise argparse.ArgumentTypeError(f"{text}: must be from 1 to {MAX_BATCH}")
-    return value
 
 
 def _add_verbose_everywhere(sub: Any) -> None:
