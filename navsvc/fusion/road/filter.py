@@ -265,10 +265,7 @@ class RoadFilter:
             flip[SPEED] = -1.0
             s.P = s.P * np.outer(flip, flip)
         s.x[HEADING] %= 2.0 * math.pi
-        low, high = self.config.odo_scale_limits
-        s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
-        limit = self.config.gyro_scale_error_limit
-        s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
+        self._bound_scales()
         s.x[GPS_LATENCY] = min(max(s.x[GPS_LATENCY], 0.0), self.config.max_gps_latency_s)
         limit = self.config.gps_bias_max_sigmas * s.gps_bias_sigma_m
         for p, b in ((X_M, GPS_BIAS_E), (Y_M, GPS_BIAS_N)):  # left free, the bias states
@@ -520,9 +517,8 @@ class RoadFilter:
           make the position look surer than it is; the rest is new at each fix."""
         s, cfg = self.state, self.config
         east, north = self._local(fix)
-        self._learn_gps_error_from_map(east, north, min(dt_s, 1.0))
         sigma_learnt = self._gps_sigma_learnt(fix)
-        s.gps_unseen_var_m2 = self._unseen_gps_var_m2(sigma_learnt)
+        self._learn_gps_error_from_map(east, north, min(dt_s, 1.0), sigma_learnt)
         white, s.gps_bias_sigma_m = self._split_sigma(sigma_learnt)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
@@ -676,27 +672,23 @@ class RoadFilter:
         adaptation: 2 is the mean when the sigmas are right)."""
         return self._sigma_m(fix) * math.sqrt(max(1.0, self.state.gps_nis_mean / 2.0))
 
-    def _unseen_gps_var_m2(self, sigma_m: float) -> float:
-        """How much more variance the fixes' error has, by their distance from the roads
-        (:meth:`_learn_gps_error_from_map`), than the sigma the filter weighs them by."""
-        cfg = self.config
-        return self.state.gps_map_error.unseen_var_m2(sigma_m, cfg.gps_map_memory_s,
-                                                      cfg.gps_map_max_sigma_m)
+    def _learn_gps_error_from_map(self, east: float, north: float, dt_s: float,
+                                  sigma_m: float) -> None:
+        """The fixes' error as the map sees it (:class:`MapSeenError`; learnt while moving,
+        on an initialised filter with a map), and how much more variance it has than
+        ``sigma_m``, the sigma the filter weighs them by (``gps_unseen_var_m2``, at most
+        ``gps_map_max_sigma_m``).
 
-    def _learn_gps_error_from_map(self, east: float, north: float, dt_s: float) -> None:
-        """The fixes' error as the map sees it (:class:`MapSeenError`), while moving, on an
-        initialised filter with a map.
-
-        Only the reported covariance takes it (``gps_unseen_var_m2``, at most
-        ``gps_map_max_sigma_m``): as a floor under the sigma the filter weighs the fixes by,
-        the bias states took up offsets of 30 m and the estimate stayed there on good
-        fixes (tune split: two drives from 0.2-0.5x raw GPS to 1-1.5x)."""
+        Only the reported covariance takes that: as a floor under the sigma the filter
+        weighs the fixes by, the bias states took up offsets of 30 m and the estimate stayed
+        there on good fixes (tune split: two drives from 0.2-0.5x raw GPS to 1-1.5x)."""
         s, cfg = self.state, self.config
-        if self.road_distance is None or not s.initialized or s.x[SPEED] < 1.0:
-            return
-        d = self.road_distance(east, north, float(s.x[HEADING]), cfg.road_fit_radius_m,
-                               cfg.road_fit_max_bearing_rad)
-        s.gps_map_error = s.gps_map_error.updated(d, dt_s, cfg.gps_map_memory_s)
+        if self.road_distance is not None and s.initialized and s.x[SPEED] >= 1.0:
+            d = self.road_distance(east, north, float(s.x[HEADING]), cfg.road_fit_radius_m,
+                                   cfg.road_fit_max_bearing_rad)
+            s.gps_map_error = s.gps_map_error.updated(d, dt_s, cfg.gps_map_memory_s)
+        s.gps_unseen_var_m2 = s.gps_map_error.unseen_var_m2(sigma_m, cfg.gps_map_memory_s,
+                                                            cfg.gps_map_max_sigma_m)
 
     def _refused_fix(self, fix: GpsFix, east: float, north: float, m: Linearised,
                      nis: float, dt_s: float) -> None:
@@ -773,8 +765,7 @@ class RoadFilter:
         east, north = self._local(fix)
         fix, track_var = self._with_velocity(fix, east, north)
         sigma = self._sigma_m(fix)
-        self._learn_gps_error_from_map(east, north, min(dt_s, 1.0))
-        s.gps_unseen_var_m2 = self._unseen_gps_var_m2(sigma)
+        self._learn_gps_error_from_map(east, north, min(dt_s, 1.0), sigma)
         white, s.gps_bias_sigma_m = self._split_sigma(sigma)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
@@ -950,13 +941,19 @@ class RoadFilter:
         s.x, s.P = kalman.fixed_gain_update(s.x, s.P, y, H, R, K)
         self._bound_calibration()
 
-    def _bound_calibration(self) -> None:
-        """The sensor-error states within the bounds the ``ekf`` mode keeps them in."""
+    def _bound_scales(self) -> None:
+        """The odometer and gyro scales within what such sensors can be off by."""
         s, cfg = self.state, self.config
         low, high = cfg.odo_scale_limits
         s.x[ODO_SCALE] = min(max(s.x[ODO_SCALE], low), high)
         limit = cfg.gyro_scale_error_limit
         s.x[GYRO_SCALE] = min(max(s.x[GYRO_SCALE], -limit), limit)
+
+    def _bound_calibration(self) -> None:
+        """The sensor-error states within the bounds the ``ekf`` mode keeps the scales in,
+        and the biases within theirs (rules, fuzzy)."""
+        s, cfg = self.state, self.config
+        self._bound_scales()
         limit = self.GYRO_BIAS_SIGMAS * cfg.initial_gyro_bias_sigma_rps
         s.x[GYRO_BIAS] = min(max(s.x[GYRO_BIAS], -limit), limit)
         limit = self.ACCEL_BIAS_LIMIT_MPS2
