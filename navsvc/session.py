@@ -86,7 +86,9 @@ class SessionConfig:
     match_interval_s: float = 0.1  # the matcher also steps between outputs (short edges)
     feedback_sigma_across_m: float = 2.0
     feedback_sigma_heading_rad: float = math.radians(5.0)
-    feedback_max_distance_m: float = 10.0
+    feedback_max_distance_m: float = 10.0  # always fed back this close to the road; farther
+    feedback_gate_sigmas: float = 3.0  # only within this many sigmas of the estimate's own
+    # across-road uncertainty (an outage's drift is pulled back, a wrong road's pull is not)
 
     @property
     def feedback(self) -> bool:
@@ -394,20 +396,31 @@ class VehicleSession:
         return position
 
     def _feed_back(self, p: MatchedPosition) -> None:
-        """A confident match (on a road, outside any ambiguity region, close and heading
-        along it) pulls the filter onto the road, at most once a second."""
-        c, e, bearing = self.config, p.estimate, p.road_bearing_rad
-        if p.state != MatchState.ON_ROAD or bearing is None or p.in_ambiguity_region or \
-                p.distance_to_road_m is None or \
-                p.distance_to_road_m > c.feedback_max_distance_m or e.speed_mps < 1.0:
+        """Pull the filter onto a confident match (:func:`feedback_wanted`), at most once a
+        second."""
+        if p.road_bearing_rad is None or not feedback_wanted(p, self.config):
             return
+        e, c = p.estimate, self.config
         if self._last_feedback_t is not None and e.t - self._last_feedback_t < 1.0:
             return
-        if abs(wrap_angle_rad(e.heading_rad - bearing)) > math.radians(20.0):
-            return
-        self.engine.correct_to_road(p.x_m, p.y_m, bearing, c.feedback_sigma_across_m,
+        self.engine.correct_to_road(p.x_m, p.y_m, p.road_bearing_rad, c.feedback_sigma_across_m,
                                     c.feedback_sigma_heading_rad)
         self._last_feedback_t = e.t
+
+
+def feedback_wanted(p: MatchedPosition, c: SessionConfig) -> bool:
+    """Whether a match is confident enough to feed back: on a road, outside any ambiguity
+    region, moving along it (within 20 degrees) and close to it: within
+    ``feedback_max_distance_m``, or farther within ``feedback_gate_sigmas`` of the estimate's
+    own uncertainty across the road, so that an outage's drift is pulled back while a wrong
+    road far outside the estimate's uncertainty is not followed."""
+    e, bearing, distance_m = p.estimate, p.road_bearing_rad, p.distance_to_road_m
+    if p.state != MatchState.ON_ROAD or bearing is None or p.in_ambiguity_region or \
+            distance_m is None or e.speed_mps < 1.0:
+        return False
+    gate_m = c.feedback_gate_sigmas * math.hypot(e.position_sigma_m, c.feedback_sigma_across_m)
+    return distance_m <= max(c.feedback_max_distance_m, gate_m) and \
+        abs(wrap_angle_rad(e.heading_rad - bearing)) <= math.radians(20.0)
 
 
 class SessionOptions(BaseModel):
