@@ -31,7 +31,7 @@ def _north_m(t: float) -> float:
 
 
 def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
-           seed: int = 1) -> list[Packet]:
+           seed: int = 1, accuracy_m: float = 1.0) -> list[Packet]:
     """Stand still, then drive north at 10 m/s: gyro 100 Hz with a bias, odometer speed at
     10 Hz, a fix a second (1 m noise, no course); ``jumps`` adds (start, end, east offset)."""
     rng = np.random.default_rng(seed)
@@ -43,9 +43,9 @@ def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
             packets.append(OdometerSample(t, speed_mps=SPEED_MPS if t > STILL_S else 0.0))
         if k % 100 == 0:
             east = sum(offset for start, end, offset in jumps if start <= t < end)
-            lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, 1.0),
-                                      _north_m(t) + rng.normal(0.0, 1.0))
-            packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0))
+            lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, accuracy_m),
+                                      _north_m(t) + rng.normal(0.0, accuracy_m))
+            packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=accuracy_m))
     return packets
 
 
@@ -184,3 +184,24 @@ def test_weighted_modes_blend_only_what_gps_measures() -> None:
         assert abs(x[GPS_BIAS_E]) < 1e-3 and abs(x[GPS_BIAS_N]) < 1e-3
         assert abs(x[SPEED] - SPEED_MPS) < 1.0
         assert abs(math.remainder(x[HEADING], 2.0 * math.pi)) < math.radians(5.0)
+
+
+
+def _shift_by_one_fix(east_offset_m: float, road_distance: RoadDistance | None) -> float:
+    """How far one fix ``east_offset_m`` off the drive moves a settled estimate east."""
+    packets = _drive(60.0, [], accuracy_m=5.0)
+    road = RoadFilter(FusionConfig(), FRAME, road_distance)
+    for p in packets:
+        road.apply(p)
+    before = float(road.state.x[0])
+    lon, lat = FRAME.to_wgs84(east_offset_m, _north_m(60.0))
+    road.apply(GpsFix(60.0, lat_deg=lat, lon_deg=lon, accuracy_m=5.0))
+    return float(road.state.x[0]) - before
+
+
+def test_a_fix_off_the_road_the_estimate_is_on_weighs_less() -> None:
+    alone, with_map = _shift_by_one_fix(14.0, None), _shift_by_one_fix(14.0, _north_road_distance)
+    assert alone > 0.5  # accepted: within the gate
+    assert with_map < 0.8 * alone
+    # within two sigmas of the road the map changes nothing
+    assert _shift_by_one_fix(6.0, _north_road_distance) == _shift_by_one_fix(6.0, None)

@@ -74,6 +74,9 @@ from navsvc.types import (
 from roadgraph.geometry import LocalFrame, bearing_rad
 
 MAX_PLAUSIBLE_SPEED_MPS = 70.0
+OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
+
+
 @dataclass
 class RoadState:
     """Everything the road filter remembers (plain data)."""
@@ -512,6 +515,10 @@ class RoadFilter:
           when fixes keep being refused the position variance widens by a fix's variance a
           second, so that fixes which agree with each other are taken within seconds; after
           ``reacquire_after_gated_s`` the filter starts over from GPS.
+        - With a map, a fix lying farther from every road than the estimate on its road (by
+          more than 2 sigma) has that excess added to its sigma in the update (not in the
+          gate): a non-line-of-sight fix off the roads pulls less (tune split, 120 drives:
+          mean log fused/raw -1.5 %, 11 drives better and 6 worse by more than 2 %).
         - ``gps_bias_share`` of the sigma is an error that changes slowly (time constant
           ``gps_bias_tau_s``): two bias states carry it, so that averaging fixes does not
           make the position look surer than it is; the rest is new at each fix."""
@@ -547,7 +554,8 @@ class RoadFilter:
             memory = cfg.gps_nis_memory_fixes * fixes_per_s
             s.gps_nis_mean += (min(nis, 10.0 * cfg.gps_huber_nis) - s.gps_nis_mean) / memory
         weight = min(1.0, cfg.gps_huber_nis / nis) if nis > 0.0 else 1.0
-        self._update_linearised((z, h, H, R / weight))
+        off_road_m = self._off_road_excess_m(east, north, sigma_learnt)
+        self._update_linearised((z, h, H, (R + off_road_m ** 2 * np.eye(2)) / weight))
         if s.gated_fixes and s.gated_offset_m is not None and not self._recent_jump(fix.t):
             s.followed_jump = (fix.t, *s.gated_offset_m)  # the filter followed a jump
         self._tracking(fix.t)
@@ -595,6 +603,19 @@ class RoadFilter:
         track_rms, jump_rms = math.sqrt(track_sq / n), math.sqrt(jump_sq / n)
         return track_rms >= cfg.jump_map_track_off_m and \
             track_rms >= cfg.jump_map_ratio * jump_rms
+
+    def _off_road_excess_m(self, east: float, north: float, sigma_m: float) -> float:
+        """How much farther from any road the fix lies than the estimate does, beyond
+        ``2 sigma_m``: while the car drives on a road, a lower bound of the fix's error (zero
+        without a map, at walking pace, or with the estimate off the roads itself)."""
+        s, cfg = self.state, self.config
+        if self.road_distance is None or not s.initialized or s.x[SPEED] < 1.0:
+            return 0.0
+        args = (float(s.x[HEADING]), cfg.road_fit_radius_m, math.pi)  # any road
+        on_road_m = self.road_distance(float(s.x[X_M]), float(s.x[Y_M]), *args)
+        if on_road_m > OFF_ROAD_ESTIMATE_M:
+            return 0.0
+        return max(self.road_distance(east, north, *args) - on_road_m - 2.0 * sigma_m, 0.0)
 
     def _split_sigma(self, sigma_m: float) -> tuple[float, float]:
         """A fix's sigma as (the part new at each fix, the slowly changing part)."""
