@@ -205,3 +205,17 @@ def test_a_fix_off_the_road_the_estimate_is_on_weighs_less() -> None:
     assert with_map < 0.8 * alone
     # within two sigmas of the road the map changes nothing
     assert _shift_by_one_fix(6.0, _north_road_distance) == _shift_by_one_fix(6.0, None)
+
+
+def test_a_sharper_fix_does_not_push_the_offset_the_bias_holds_into_the_position() -> None:
+    """The bias states hold a 30 m offset of the fixes (a non-line-of-sight run the estimate
+    did not follow); a fix as far off, but with a quarter of the sigma, leaves the position:
+    the bias bound shrinks no faster than the bias decays."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    for p in _drive(60.0, [], accuracy_m=8.0):
+        road.apply(p)
+    road.state.x[GPS_BIAS_E] += 30.0
+    before = float(road.state.x[0])
+    lon, lat = FRAME.to_wgs84(before + 30.0, _north_m(60.0))
+    road.apply(GpsFix(60.0, lat_deg=lat, lon_deg=lon, accuracy_m=2.0))
+    assert abs(float(road.state.x[0]) - before) < 3.0

@@ -378,7 +378,8 @@ def pack_scalars(s: RoadState, last_match_t: float | None) -> Array:
         nan if window is None else window[0], nan if window is None else window[1],
         nan if s.odo_speed_mps is None else s.odo_speed_mps,
         nan if s.last_output_t is None else s.last_output_t,
-        nan if last_match_t is None else last_match_t, s.gps_bias_sigma_m), dtype=np.float64)
+        nan if last_match_t is None else last_match_t, s.gps_bias_bound_sigma_m),
+        dtype=np.float64)
 
 
 def unpack_scalars(s: RoadState, scalars: Array) -> None:

@@ -115,6 +115,8 @@ class RoadState:
     # the estimate shares with the fixes, reported in its covariance (not filtered on)
     gps_bias_t: float | None = None  # time of the GPS bias states
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
+    gps_bias_bound_sigma_m: float = 0.0  # the bias bound's sigma: that one, shrinking no
+    # faster than the bias decays
     gated_courses: int = 0  # consecutive GPS course/speed updates refused by the gate
     gps_velocity_nis_mean: float = 2.0  # running mean of the GPS velocity's NIS
     last_gps_t: float | None = None
@@ -270,7 +272,7 @@ class RoadFilter:
         s.x[HEADING] %= 2.0 * math.pi
         self._bound_scales()
         s.x[GPS_LATENCY] = min(max(s.x[GPS_LATENCY], 0.0), self.config.max_gps_latency_s)
-        limit = self.config.gps_bias_max_sigmas * s.gps_bias_sigma_m
+        limit = self.config.gps_bias_max_sigmas * s.gps_bias_bound_sigma_m
         for p, b in ((X_M, GPS_BIAS_E), (Y_M, GPS_BIAS_N)):  # left free, the bias states
             # took up a 70 m offset of the fixes from a wrong start, and the estimate stayed
             # there while the fixes were right: the excess goes to the position (where the
@@ -474,7 +476,7 @@ class RoadFilter:
         s.P[reset, :] = 0.0
         s.P[:, reset] = 0.0
         s.x[list(GPS_BIAS)] = 0.0
-        s.gps_bias_sigma_m = self._split_sigma(sigma_m)[1]
+        s.gps_bias_sigma_m = s.gps_bias_bound_sigma_m = self._split_sigma(sigma_m)[1]
         s.P[X_M, X_M] = s.P[Y_M, Y_M] = sigma_m ** 2
         s.P[X_M, GPS_BIAS_E] = s.P[GPS_BIAS_E, X_M] = -s.gps_bias_sigma_m ** 2
         s.P[Y_M, GPS_BIAS_N] = s.P[GPS_BIAS_N, Y_M] = -s.gps_bias_sigma_m ** 2
@@ -526,7 +528,7 @@ class RoadFilter:
         east, north = self._local(fix)
         sigma_learnt = self._gps_sigma_learnt(fix)
         self._learn_gps_error_from_map(east, north, min(dt_s, 1.0), sigma_learnt)
-        white, s.gps_bias_sigma_m = self._split_sigma(sigma_learnt)
+        white = self._set_bias_sigma(sigma_learnt, dt_s)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
         sigma = white * math.sqrt(fixes_per_s)
@@ -616,6 +618,17 @@ class RoadFilter:
         if on_road_m > OFF_ROAD_ESTIMATE_M:
             return 0.0
         return max(self.road_distance(east, north, *args) - on_road_m - 2.0 * sigma_m, 0.0)
+
+    def _set_bias_sigma(self, sigma_m: float, dt_s: float) -> float:
+        """A fix's sigma split (:meth:`_split_sigma`): the bias's steady sigma set, its
+        bound's sigma shrinking no faster than the bias decays (a fix whose HDOP halved had the
+        bound push a 34 m non-line-of-sight offset the bias states held into the position);
+        the white part returned."""
+        s = self.state
+        white, s.gps_bias_sigma_m = self._split_sigma(sigma_m)
+        decay = math.exp(-max(dt_s, 0.0) / self.config.gps_bias_tau_s)
+        s.gps_bias_bound_sigma_m = max(s.gps_bias_sigma_m, s.gps_bias_bound_sigma_m * decay)
+        return white
 
     def _split_sigma(self, sigma_m: float) -> tuple[float, float]:
         """A fix's sigma as (the part new at each fix, the slowly changing part)."""
@@ -787,7 +800,7 @@ class RoadFilter:
         fix, track_var = self._with_velocity(fix, east, north)
         sigma = self._sigma_m(fix)
         self._learn_gps_error_from_map(east, north, min(dt_s, 1.0), sigma)
-        white, s.gps_bias_sigma_m = self._split_sigma(sigma)
+        white = self._set_bias_sigma(sigma, dt_s)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
         m = self._weighted_position(east, north, white * math.sqrt(fixes_per_s))
