@@ -95,8 +95,8 @@ def test_with_the_map_a_jump_off_the_roads_is_still_refused() -> None:
 def test_a_start_inside_a_non_line_of_sight_run_is_left_when_the_map_says_so() -> None:
     """The drive starts with its fixes 50 m off the road and the filter settles on them;
     when the true fixes come back, they are a "jump" from the settled track. Without a map it
-    is refused for a minute; with one, the jumped fixes lie on the road and the track off it,
-    and the filter takes them within a few seconds."""
+    is refused for a minute; with one, the estimate's distance from the road is a lower bound
+    of its error, its variance widens to it, and the true fixes are taken within 5 fixes."""
     packets = _drive(120.0, [(0.0, 40.0, 50.0)])
     _, blind = _run(packets)
     assert all(reason.startswith("refused: jumped") for t, _, reason in blind
@@ -104,10 +104,9 @@ def test_a_start_inside_a_non_line_of_sight_run_is_left_when_the_map_says_so() -
     _, fixes = _run(packets, _north_road_distance)
     assert all(err > 40.0 for t, err, _ in fixes if 20.0 <= t < 40.0)
     back = [f for f in fixes if f[0] >= 40.0]
-    assert back[0][2].startswith("refused: jumped")
     taken = next(i for i, f in enumerate(back) if not f[2].startswith("refused"))
-    assert taken <= 5 and back[taken][2] == "re-acquired: the fixes lie on a road, the track off it"
-    assert all(err < 3.0 for _, err, _ in back[taken:]), back
+    assert taken <= 5
+    assert all(err < 5.0 for _, err, _ in back[taken:]), back
 
 
 def test_the_map_makes_the_reported_sigma_hold_an_error_the_fixes_share() -> None:
@@ -219,3 +218,4 @@ def test_a_sharper_fix_does_not_push_the_offset_the_bias_holds_into_the_position
     lon, lat = FRAME.to_wgs84(before + 30.0, _north_m(60.0))
     road.apply(GpsFix(60.0, lat_deg=lat, lon_deg=lon, accuracy_m=2.0))
     assert abs(float(road.state.x[0]) - before) < 3.0
+
