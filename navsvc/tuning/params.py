@@ -137,6 +137,8 @@ TABLE: tuple[Parameter, ...] = (
     # the session's map feedback
     Parameter("map_feedback", "session", choices=(False, True), bits=1),
     _p("feedback_sigma_across_m", "session", 0.5, 10.0, "log"),
+    _p("feedback_max_distance_m", "session", 3.0, 30.0, "log"),
+    _p("feedback_gate_sigmas", "session", 1.0, 6.0, "log"),
 )
 
 BY_NAME = {p.name: p for p in TABLE}
