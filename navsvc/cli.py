@@ -157,6 +157,11 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--profiles", type=Path, metavar="DIR",
                     help="a folder of tuned profiles (`navsvc tune`); a session names one by "
                     "its file stem (default: $NAVSVC_PROFILES)")
+    sv.add_argument("--stream-port", type=_whole_number_arg(1, 65535), metavar="PORT",
+                    default=os.environ.get("NAVSVC_STREAM_PORT") or None,
+                    help="also serve the session stream (WS /v1/sessions/{id}/stream, the "
+                    "same protocol) on picows on --host:PORT, at less CPU per message than "
+                    "uvicorn's (default: $NAVSVC_STREAM_PORT, else not)")
     _add_worker_options(sv)
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
@@ -794,7 +799,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     if args.workers > 1 or args.balancer:
         return _serve_workers(args)
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
-                                 profiles_path=args.profiles, worker_id=args.worker_id)
+                                 profiles_path=args.profiles, worker_id=args.worker_id,
+                                 stream_port=args.stream_port, stream_host=args.host)
     log.info("profiles: %s", ", ".join(settings.profiles()) or "none")  # a bad one fails here
     app = create_app(settings)
     if settings.worker_id is not None:  # the balancer's health checks, twice a second

@@ -87,7 +87,7 @@ async def _serve(websocket: WebSocket, state: AppState, session_id: str, owner: 
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
                 break
-            replies.put(await _answer(state, session_id, owner, message))
+            replies.put(await answer(state, session_id, owner, message))
             await asyncio.sleep(0)  # let the sender run between messages
     except WebSocketDisconnect:
         pass
@@ -95,10 +95,11 @@ async def _serve(websocket: WebSocket, state: AppState, session_id: str, owner: 
         sender.cancel()
 
 
-async def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
-                  ) -> dict[str, Any]:
-    """The reply to one WebSocket frame; never raises. A numbered batch or an array whose
-    packets are all valid is decoded and validated in one call
+async def answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
+                 ) -> dict[str, Any]:
+    """The reply to one WebSocket message (an ASGI receive event: ``text`` or ``bytes``;
+    also the picows endpoint's, :mod:`navsvc.api.fast_stream`); never raises. A numbered
+    batch or an array whose packets are all valid is decoded and validated in one call
     (:func:`navsvc.wire.bulk.decode_message`); any other message, or one with a bad packet,
     the careful way, which says what is wrong."""
     text = frame.get("text")
