@@ -225,7 +225,8 @@ def _add_worker_options(sv: argparse.ArgumentParser) -> None:
     sv.add_argument("--balancer", action="store_true",
                     help="HAProxy in front even of one worker")
     sv.add_argument("--worker-port-base", type=int, metavar="PORT",
-                    help="worker k listens on 127.0.0.1:PORT+k (default: --port + 1)")
+                    help="worker k listens on 127.0.0.1:PORT+k (default: --port + 1), and "
+                    "with --stream-port its picows stream on PORT+N+k")
     sv.add_argument("--worker-id", type=int, metavar="K",
                     help="serve as worker K of a fleet behind a balancer: session ids "
                     "w<K>-..., trip log <triplog>.w<K> (default: $NAVSVC_WORKER_ID; "
@@ -823,7 +824,7 @@ def _serve_workers(args: argparse.Namespace) -> int:
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
                                  profiles_path=args.profiles)  # a bad setting fails here
     plan = ClusterPlan.local(args.host, args.port, args.workers, settings.triplog,
-                             args.worker_port_base)
+                             args.worker_port_base, args.stream_port)
     worker_args = ["--map", str(settings.map_path)]
     if args.profiles is not None:
         worker_args += ["--profiles", str(args.profiles)]
