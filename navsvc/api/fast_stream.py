@@ -20,7 +20,6 @@ the socket is not read until they are answered.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import re
 from collections import deque
@@ -38,7 +37,7 @@ from picows import (
 )
 
 from navsvc.api.deps import API_KEY_HEADER, AppState, check_key
-from navsvc.api.routes.stream import answer
+from navsvc.api.routes.stream import answer, encode_reply
 from navsvc.errors import SessionNotFound
 
 log = logging.getLogger(__name__)
@@ -49,10 +48,6 @@ MAX_MESSAGE_BYTES = 16 * 1024 * 1024  # uvicorn's ws_max_size
 PING_IDLE_S = 20.0  # as navsvc serve's uvicorn: a ping after 20 s without traffic,
 PING_REPLY_S = 20.0  # and the connection closed when its pong takes longer than 20 s
 _PATH = re.compile(r"/v1/sessions/([^/]+)/stream")
-
-
-def _encode(message: dict[str, Any]) -> bytes:
-    return json.dumps(message, separators=(",", ":")).encode()
 
 
 class StreamListener(WSListener):
@@ -156,7 +151,7 @@ class StreamListener(WSListener):
             return
         if self._dropped:
             reply, self._dropped = {**reply, "dropped": self._dropped}, 0
-        transport.send(WSMsgType.TEXT, _encode(reply))
+        transport.send(WSMsgType.TEXT, encode_reply(reply))
 
     def pause_writing(self) -> None:
         self._writing_paused = True
