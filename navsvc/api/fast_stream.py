@@ -94,16 +94,14 @@ class StreamListener(WSListener):
             return
         if kind not in (WSMsgType.TEXT, WSMsgType.BINARY, WSMsgType.CONTINUATION):
             return  # ping and pong: picows answers pings itself
-        if kind != WSMsgType.CONTINUATION:
+        payload: bytes | None
+        if kind != WSMsgType.CONTINUATION and frame.fin:  # a message in one frame
             self._fragments, self._fragment_type = [], kind
-        self._fragments.append(frame.get_payload_as_bytes())
-        if sum(map(len, self._fragments)) > MAX_MESSAGE_BYTES:
-            self._close(int(WSCloseCode.MESSAGE_TOO_BIG.value), "message too big")
+            payload = frame.get_payload_as_bytes()
+        else:
+            payload = self._reassemble(kind, frame)
+        if payload is None:
             return
-        if not frame.fin:
-            return
-        payload = b"".join(self._fragments) if len(self._fragments) > 1 else self._fragments[0]
-        self._fragments = []
         if self._fragment_type == WSMsgType.TEXT:
             try:
                 event: dict[str, Any] = {"text": payload.decode()}
@@ -119,6 +117,19 @@ class StreamListener(WSListener):
         elif len(self._waiting) > MAX_WAITING_FRAMES and not self._paused_reading:
             transport.underlying_transport.pause_reading()
             self._paused_reading = True
+
+    def _reassemble(self, kind: WSMsgType, frame: WSFrame) -> bytes | None:
+        """A message sent in several frames: its payload once its last frame is in."""
+        if kind != WSMsgType.CONTINUATION:
+            self._fragments, self._fragment_type = [], kind
+        self._fragments.append(frame.get_payload_as_bytes())
+        if sum(map(len, self._fragments)) > MAX_MESSAGE_BYTES:
+            self._close(int(WSCloseCode.MESSAGE_TOO_BIG.value), "message too big")
+            return None
+        if not frame.fin:
+            return None
+        payload, self._fragments = b"".join(self._fragments), []
+        return payload
 
     async def _answer_waiting(self) -> None:
         """Answer the waiting frames in order, each once the one before is answered."""

@@ -83,6 +83,9 @@ def test_pings_errors_and_single_packets(served: tuple[Server, str]) -> None:
     assert [r.get("code") for r in replies[1:4]] == ["malformed"] * 3
     assert replies[2]["message"] == "binary message is not UTF-8 JSON text"
     assert replies[4]["type"] == "result" and replies[4]["accepted"] == 1
+    with connect(url, additional_headers=HEADERS) as ws:  # one message in three frames
+        ws.send(iter(['[{"t": 1, "kind": "gps", ', '"lat": 43.7385, ', '"lon": 7.4246}]']))
+        assert json.loads(ws.recv(timeout=10))["accepted"] == 1
 
 
 def test_unknown_sessions_and_keys_are_closed_with_the_api_codes(
