@@ -32,6 +32,7 @@ PARTS: list[tuple[str, tuple[str, ...]]] = [
     ("WebSocket send (reply JSON, uvicorn)", ("WebSocket.send", "send_all",
                                               "WebSocketsSansIOProtocol.send")),
     ("route glue (stream.py, sessions.py)", ("navsvc/api/routes/",)),
+    ("picows endpoint (fast_stream.py: frames in, replies out)", ("navsvc/api/fast_stream.py",)),
     ("HTTP requests (sessions opened, closed)", ("httptools_impl",)),
     ("WebSocket receive (uvicorn, websockets)", ("websockets/", "WebSocketsSansIOProtocol",
                                                  "wsproto", "starlette/websockets")),

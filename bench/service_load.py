@@ -370,9 +370,14 @@ def run_server(db: Path, tmp: Path, workers: int, drive: list[dict], args: argpa
                ) -> list[dict[str, Any]]:
     """Every scenario against one server (``workers`` 0: a single process, no balancer)."""
     env = {"NAVSVC_WS_QUEUE": "1024"}
+    stream_port = free_port() if args.stream == "picows" else None
+    if stream_port is not None:  # the WebSockets go to the picows endpoint on this port
+        env["NAVSVC_STREAM_PORT"] = str(stream_port)
     log = tmp / f"server-{workers}.log"
     server = start_server(db, log, env=env) if workers == 0 else \
         start_workers(db, log, workers, env)
+    if stream_port is not None:
+        server.ws_url = f"ws://127.0.0.1:{stream_port}"
     rows: list[dict[str, Any]] = []
     try:
         for n in counts(args.throughput):
@@ -393,7 +398,8 @@ def run_server(db: Path, tmp: Path, workers: int, drive: list[dict], args: argpa
         for suffix in ("", "-wal", "-shm"):  # the next server starts on an empty log
             for old in tmp.glob(f"*.trips.db*{suffix}"):
                 old.unlink(missing_ok=True)
-    return [{**r, "server": server_name(workers), "workers": workers} for r in rows]
+    name = server_name(workers) + (" (picows)" if stream_port is not None else "")
+    return [{**r, "server": name, "workers": workers} for r in rows]
 
 
 def main() -> None:
@@ -417,6 +423,10 @@ def main() -> None:
                         help="floor stacks, one after the other: uvicorn (websockets-sansio, "
                              "as navsvc serve), uvicorn-websockets, uvicorn-wsproto, granian, "
                              "picows; '+msgpack' for MessagePack frames (default uvicorn)")
+    parser.add_argument("--stream", choices=("uvicorn", "picows"), default="uvicorn",
+                        help="the service's WebSocket endpoint the sessions stream to: "
+                             "uvicorn's (the API's port) or picows's (navsvc serve "
+                             "--stream-port; default uvicorn)")
     parser.add_argument("--profile", type=Path, default=None, metavar="DIR",
                         help="sample the server with py-spy during each real-rate run, the "
                              "stacks into DIR (collapsed format)")

@@ -157,6 +157,11 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--profiles", type=Path, metavar="DIR",
                     help="a folder of tuned profiles (`navsvc tune`); a session names one by "
                     "its file stem (default: $NAVSVC_PROFILES)")
+    sv.add_argument("--stream-port", type=_whole_number_arg(1, 65535), metavar="PORT",
+                    default=os.environ.get("NAVSVC_STREAM_PORT") or None,
+                    help="also serve the session stream (WS /v1/sessions/{id}/stream, the "
+                    "same protocol) on picows on --host:PORT, at less CPU per message than "
+                    "uvicorn's (default: $NAVSVC_STREAM_PORT, else not)")
     _add_worker_options(sv)
 
     sd = sub.add_parser("send", help="stream a drive to a running service",
@@ -220,7 +225,8 @@ def _add_worker_options(sv: argparse.ArgumentParser) -> None:
     sv.add_argument("--balancer", action="store_true",
                     help="HAProxy in front even of one worker")
     sv.add_argument("--worker-port-base", type=int, metavar="PORT",
-                    help="worker k listens on 127.0.0.1:PORT+k (default: --port + 1)")
+                    help="worker k listens on 127.0.0.1:PORT+k (default: --port + 1), and "
+                    "with --stream-port its picows stream on PORT+N+k")
     sv.add_argument("--worker-id", type=int, metavar="K",
                     help="serve as worker K of a fleet behind a balancer: session ids "
                     "w<K>-..., trip log <triplog>.w<K> (default: $NAVSVC_WORKER_ID; "
@@ -794,7 +800,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     if args.workers > 1 or args.balancer:
         return _serve_workers(args)
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
-                                 profiles_path=args.profiles, worker_id=args.worker_id)
+                                 profiles_path=args.profiles, worker_id=args.worker_id,
+                                 stream_port=args.stream_port, stream_host=args.host)
     log.info("profiles: %s", ", ".join(settings.profiles()) or "none")  # a bad one fails here
     app = create_app(settings)
     if settings.worker_id is not None:  # the balancer's health checks, twice a second
@@ -817,7 +824,7 @@ def _serve_workers(args: argparse.Namespace) -> int:
     settings = Settings.from_env(map_path=args.map, triplog_path=args.triplog,
                                  profiles_path=args.profiles)  # a bad setting fails here
     plan = ClusterPlan.local(args.host, args.port, args.workers, settings.triplog,
-                             args.worker_port_base)
+                             args.worker_port_base, args.stream_port)
     worker_args = ["--map", str(settings.map_path)]
     if args.profiles is not None:
         worker_args += ["--profiles", str(args.profiles)]

@@ -18,9 +18,12 @@ Only the API's event loop uses a TripLog, so one connection serves it. WAL check
 (copying the WAL into the database file, with an fsync) run every second in a thread of their
 own, on their own connection, instead of inside whichever commit crossed SQLite's 1,000-page
 mark: there they stalled the event loop for 20 ms every 0.6 s with 1,000 GPS-only sessions.
-Once few pages are left to copy, a short blocking pass lets the WAL start over instead of
-growing under load. An ended session is only marked; :meth:`TripLog.drop_closed` deletes its
-batches later, a chunk at a time.
+Once few pages are left to copy and the WAL holds ``restart_wal_frames`` pages (256 MB),
+a short blocking pass lets the WAL start over instead of growing under load. Short, but it
+holds the writer (the event loop) for its fsyncs: 15-45 ms on this machine's disk when
+busy, where it ran every second and made the p99 latency at 200 real-rate sessions; at 256 MB
+it runs every ~13 s at that load (5,000 pages a second). An ended session is only marked;
+:meth:`TripLog.drop_closed` deletes its batches later, a chunk at a time.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ log = logging.getLogger(__name__)
 _ENCODER = json.JSONEncoder(separators=(",", ":"))
 PASSIVE_CHECKPOINTS = 8  # at most, each second
 FRAMES_LEFT_FOR_RESTART = 256  # that one copies no more than about this many pages
+RESTART_WAL_FRAMES = 65_536  # and the WAL holds this many (256 MB of 4 kB pages)
 DROP_CHUNK_BATCHES = 64  # batches of ended sessions deleted in one transaction (a few ms)
 
 SCHEMA = """
@@ -176,7 +180,8 @@ class TripLog:
     server refuses to start on it instead of reading the first one's live sessions.
     """
 
-    def __init__(self, path: Path, sync: str = "normal", checkpoint_every_s: float = 1.0) -> None:
+    def __init__(self, path: Path, sync: str = "normal", checkpoint_every_s: float = 1.0,
+                 restart_wal_frames: int = RESTART_WAL_FRAMES) -> None:
         if sync not in ("normal", "full"):
             raise ValueError(f"sync must be 'normal' or 'full', got {sync!r}")
         self.path = path
@@ -193,7 +198,8 @@ class TripLog:
                 self._db.executescript(f"BEGIN; {script} COMMIT;")
         self._group: CommitGroup | None = None  # the open transaction's batches
         self._closing = threading.Event()
-        self._checkpointer = threading.Thread(target=self._checkpoint, args=(checkpoint_every_s,),
+        self._checkpointer = threading.Thread(target=self._checkpoint,
+                                              args=(checkpoint_every_s, restart_wal_frames),
                                               name=f"checkpoint {path.name}", daemon=True)
         self._checkpointer.start()
 
@@ -207,7 +213,7 @@ class TripLog:
         elif "client_seq" not in row[0]:
             self._db.execute("ALTER TABLE batches RENAME TO batches_by_seq")
 
-    def _checkpoint(self, every_s: float) -> None:
+    def _checkpoint(self, every_s: float, restart_frames: int) -> None:
         db = sqlite3.connect(self.path, isolation_level=None)
         try:
             while not self._closing.wait(every_s):
@@ -216,10 +222,13 @@ class TripLog:
                     # one never catches up with it, and only a complete checkpoint lets the
                     # WAL start over (it grew by 40 MB/s at 2,000 batches/s). So: passive
                     # ones until few frames are left, then one that holds the writer off
-                    # while it copies those (if the writer outruns them all, next time).
+                    # while it copies those (if the writer outruns them all, next time),
+                    # once the WAL is large enough for a start over to be worth that hold.
                     for _ in range(PASSIVE_CHECKPOINTS):
                         _, frames, copied = db.execute("PRAGMA wal_checkpoint(PASSIVE)"
                                                        ).fetchone()
+                        if frames < restart_frames:
+                            break
                         if frames - copied <= FRAMES_LEFT_FOR_RESTART:
                             db.execute("PRAGMA wal_checkpoint(RESTART)")
                             break

@@ -166,3 +166,44 @@ def test_a_lost_commit_is_a_503_and_the_batch_can_be_sent_again(
     assert asyncio.run(ingest(state, again, GPS[:3]))["accepted"] == 3
     assert logged_rows(state.store.triplog.path) == 1
     state.store.triplog.close()
+
+
+def test_deferred_checkpoints_are_taken_a_few_before_each_commit(
+        sample_graph: RoadGraph, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Sessions that come due together are checkpointed over several commits (budget 0: one
+    a commit), in the group they join; a closed or rebuilt session is skipped."""
+    monkeypatch.setattr("navsvc.session.CHECKPOINT_EVERY_PACKETS", 2)
+    ticks = iter(range(10**6))  # a clock a second ahead at each reading
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"),
+                         clock=lambda: float(next(ticks)))
+    cars = [store.create("", f"car {k}", {"sensors": "gps_only"}) for k in range(4)]
+    for car in cars:
+        store.ingest(car, GPS[:3], defer_commit=True)
+    assert [store.triplog.checkpoint(c.id) for c in cars] == [None] * 4  # none yet
+    store.delete(cars[1].id, "")
+    store._sessions[cars[2].id] = store._load(cars[2].logged())  # as after a lost group
+    assert store.checkpoint_due(budget_s=0.0) == 1
+    store.triplog.commit()
+    first = store.triplog.checkpoint(cars[0].id)
+    assert first is not None and first.packets == 3
+    assert store.triplog.checkpoint(cars[3].id) is None  # the next commit's
+    assert store.checkpoint_due(budget_s=0.0) == 1
+    assert store.checkpoint_due(budget_s=0.0) == 0
+    assert store.triplog.checkpoint(cars[2].id) is None
+    checkpoint = store.triplog.checkpoint(cars[3].id)
+    assert checkpoint is not None and checkpoint.packets == 3
+    store.triplog.close()
+
+
+def test_an_ingest_without_deferred_commit_checkpoints_at_once(
+        sample_graph: RoadGraph, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("navsvc.session.CHECKPOINT_EVERY_PACKETS", 2)
+    ticks = iter(range(10**6))
+    store = SessionStore(sample_graph, TripLog(tmp_path / "trips.db"),
+                         clock=lambda: float(next(ticks)))
+    car = store.create("", "car", {"sensors": "gps_only"})
+    store.ingest(car, GPS[:3])
+    checkpoint = store.triplog.checkpoint(car.id)
+    assert checkpoint is not None and checkpoint.packets == 3
+    assert store.checkpoint_due() == 0
+    store.triplog.close()

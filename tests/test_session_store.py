@@ -152,9 +152,10 @@ def test_the_checkpointer_moves_the_wal_into_the_database(tmp_path: Path) -> Non
 
 def test_the_wal_starts_over_under_steady_writes(tmp_path: Path) -> None:
     """A passive checkpoint alone never completes while the writer keeps committing, and the
-    WAL then grows for as long as the load lasts; the checkpointer finishes each one."""
+    WAL then grows for as long as the load lasts; the checkpointer finishes one once the WAL
+    holds ``restart_wal_frames`` pages."""
     path = tmp_path / "trips.db"
-    log = TripLog(path, checkpoint_every_s=0.05)
+    log = TripLog(path, checkpoint_every_s=0.05, restart_wal_frames=64)
     log.create_session(LoggedSession("s1", "", "car", {}, 0.0))
     batch = [{**GPS[0], "note": "x" * 4000}]
     size = len(json.dumps(batch))

@@ -28,6 +28,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from navsvc import __version__
 from navsvc.api.deps import AppState
+from navsvc.api.fast_stream import FastStream
 from navsvc.api.logs import redact_api_keys
 from navsvc.api.openapi import DOCS_STATIC_DIR, DOCS_STATIC_URL, build_openapi, docs_router
 from navsvc.api.routes import maps, match, ops, sessions, stream, view
@@ -92,6 +93,10 @@ def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> Fast
         log.info("serving map %r (%s); trip log %s; %d open sessions to restore%s",
                  graph.map_id, settings.map_path, settings.triplog, reopened,
                  "" if settings.worker_id is None else f" (worker {settings.worker_id})")
+        fast_stream = None if settings.stream_port is None else \
+            FastStream(state, settings.stream_host, settings.stream_port)
+        if fast_stream is not None:
+            await fast_stream.start()
         upkeep = [asyncio.create_task(_restore_sessions(store)),
                   asyncio.create_task(_expire_idle(state)),
                   asyncio.create_task(_drop_closed_logs(triplog)),
@@ -99,6 +104,8 @@ def create_app(settings: Settings, replay: dict[str, Any] | None = None) -> Fast
         yield
         for task in upkeep:
             task.cancel()
+        if fast_stream is not None:
+            await fast_stream.stop()
         store.checkpoint_all()  # the next start then replays nothing
         triplog.close()
 

@@ -12,6 +12,8 @@
 | ``NAVSVC_MAX_SESSIONS_PER_KEY`` | 10000 | open sessions per API key (429 beyond) |
 | ``NAVSVC_SESSION_IDLE_S`` | 3600 | a session with no packet for this long ends |
 | ``NAVSVC_WS_QUEUE`` | 64 | replies queued per WebSocket before the oldest is dropped |
+| ``NAVSVC_STREAM_PORT`` | (none) | the session stream on picows too, on this port (fast_stream) |
+| ``NAVSVC_STREAM_HOST`` | 127.0.0.1 | its address (``navsvc serve`` sets it to ``--host``) |
 | ``NAVSVC_VIEW_HISTORY`` | 7200 | batches with fixes or positions kept per watched session |
 | ``NAVSVC_PROFILES`` | (none) | folder of tuned profiles a session may name (``navsvc tune``) |
 | ``NAVSVC_WORKERS`` | 1 | ``navsvc serve``: worker processes behind HAProxy (navsvc.cluster) |
@@ -49,6 +51,8 @@ class Settings:
     profiles_path: Path | None = None  # a folder of tuned profiles (`serve --profiles`)
     worker_id: int | None = None  # one worker of several (navsvc.cluster); None: alone
     peers: tuple[str, ...] = ()  # every worker's base URL, in worker order (self included)
+    stream_port: int | None = None  # the picows session stream's port; None: not served
+    stream_host: str = "127.0.0.1"
 
     def __post_init__(self) -> None:
         for name in ("max_body_bytes", "max_batch_packets", "max_trace_points",
@@ -58,6 +62,8 @@ class Settings:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.triplog_sync not in ("normal", "full"):
             raise ConfigError(f"triplog_sync must be normal or full, got {self.triplog_sync!r}")
+        if self.stream_port is not None and not 0 <= self.stream_port <= 65535:
+            raise ConfigError(f"stream_port must be from 0 to 65535, got {self.stream_port}")
         if self.worker_id is not None and self.worker_id < 0:
             raise ConfigError(f"worker_id must be >= 0, got {self.worker_id}")
         if self.peers and (self.worker_id is None or self.worker_id >= len(self.peers)):
@@ -108,7 +114,7 @@ def _profiles(folder: Path) -> dict[str, dict[str, Any]]:
 
 
 _INTS = {"max_body_bytes", "max_batch_packets", "max_trace_points", "max_sessions_per_key",
-         "ws_queue_messages", "view_history_batches", "worker_id"}
+         "ws_queue_messages", "view_history_batches", "worker_id", "stream_port"}
 
 
 def _convert(field: str, text: str, env_name: str) -> Any:

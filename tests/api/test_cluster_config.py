@@ -66,6 +66,40 @@ def test_impossible_plans_are_refused() -> None:
     assert plan.peers() == "http://127.0.0.1:8001,http://127.0.0.1:8002"
 
 
+def test_the_picows_streams_go_to_their_workers_stream_ports(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    workers = [Backend(0, "127.0.0.1", 8001, 8003), Backend(1, "10.0.0.7", 9000, 9100)]
+    text = haproxy_config(workers, "*:8000", stream_bind="*:8100")
+    stream = text[text.index("frontend navsvc_stream"):]
+    assert "    bind *:8100" in stream
+    assert "use_backend stream1 if { path_beg /v1/sessions/w1- }" in stream
+    assert "backend stream1\n    server w1 10.0.0.7:9100\n" in stream
+    assert "default_backend not_a_stream" in stream and "return status 404" in stream
+    assert text.startswith(haproxy_config(workers, "*:8000"))  # the rest unchanged
+    with pytest.raises(ConfigError, match=r"a stream port is needed for every worker; "
+                                          r"workers \[0, 1\] have none"):
+        haproxy_config(TWO, "*:8000", stream_bind="*:8100")
+    plan = ClusterPlan.local("0.0.0.0", 8000, 2, Path("t.db"), stream_port=8100)
+    assert [(b.port, b.stream_port) for b in plan.workers] == [(8001, 8003), (8002, 8004)]
+    with pytest.raises(ConfigError, match="include the balancer's stream port 8003"):
+        ClusterPlan.local("0.0.0.0", 8000, 2, Path("t.db"), stream_port=8003)
+    assert main(["haproxy-config", "--bind", "*:8000", "--stream-bind", "*:8100",
+                 "--worker", "0=127.0.0.1:8001/8003", "--worker", "1=10.0.0.7:9000/9100"]) == 0
+    assert capsys.readouterr().out == haproxy_config(workers, "*:8000", stream_bind="*:8100")
+
+
+def test_haproxy_accepts_the_config_with_streams(tmp_path: Path) -> None:
+    try:
+        haproxy = find_haproxy()
+    except ConfigError:
+        pytest.skip("no HAProxy installed (apt-get install haproxy; make test does it as root)")
+    config = tmp_path / "haproxy.cfg"
+    config.write_text(haproxy_config([Backend(0, "127.0.0.1", 8001, 8002)], "127.0.0.1:8000",
+                                     stream_bind="127.0.0.1:8100"))
+    checked = subprocess.run([haproxy, "-c", "-f", str(config)], capture_output=True, text=True)
+    assert checked.returncode == 0, checked.stderr
+
+
 def test_config_command_prints_it_for_workers_anywhere(capsys: pytest.CaptureFixture[str]
                                                        ) -> None:
     assert main(["haproxy-config", "--bind", "*:80", "--worker", "0=127.0.0.1:8001",

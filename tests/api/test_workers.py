@@ -18,6 +18,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from navsvc.cluster import find_haproxy
@@ -76,7 +77,14 @@ def workers_up(cluster: Server) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def cluster(sample_db: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+def stream_port() -> int:
+    """The balancer's port for the picows session streams (serve --stream-port)."""
+    return free_port()
+
+
+@pytest.fixture(scope="module")
+def cluster(sample_db: Path, tmp_path_factory: pytest.TempPathFactory, stream_port: int
+            ) -> Iterator[Server]:
     _haproxy()
     folder = tmp_path_factory.mktemp("cluster")
     db = folder / "monaco.db"
@@ -84,7 +92,8 @@ def cluster(sample_db: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     base = free_port()
     server = start_process(lambda port: [
         sys.executable, "-m", "navsvc", "serve", "--map", str(db), "--host", "127.0.0.1",
-        "--port", str(port), "--workers", "2", "--worker-port-base", str(base)],
+        "--port", str(port), "--workers", "2", "--worker-port-base", str(base),
+        "--stream-port", str(stream_port)],
         folder / "cluster.log")
     wait_until(lambda: workers_up(server) == {"0", "1"})
     yield server
@@ -111,6 +120,26 @@ def one_on_each_worker(client: httpx.Client) -> dict[str, str]:
             return ids
         time.sleep(0.1)
     raise AssertionError(f"sessions landed on one worker only: {ids}")
+
+
+def test_the_picows_streams_reach_each_sessions_worker_through_the_balancer(
+        cluster: Server, stream_port: int, packets: list[dict]) -> None:
+    client = cluster.client()
+    streams = f"ws://127.0.0.1:{stream_port}/v1/sessions"
+    for sid in one_on_each_worker(client).values():
+        with connect(f"{streams}/{sid}/stream") as ws:
+            for i in range(0, 4 * BATCH, BATCH):
+                ws.send(json.dumps(packets[i:i + BATCH]))
+                reply = json.loads(ws.recv(timeout=30))
+                assert reply["type"] == "result" and reply["accepted"] == BATCH
+        assert client.get(f"/sessions/{sid}").json()["packets_accepted"] == 4 * BATCH
+    with connect(f"{streams}/w1-nope/stream") as ws:  # worker 1's picows says so
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=10)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 4404
+    with pytest.raises(InvalidStatus) as refused:  # no worker's id: HAProxy's 404
+        connect(f"{streams}/nope/stream")
+    assert refused.value.response.status_code == 404
 
 
 def test_session_ids_name_their_worker_and_every_request_reaches_it(

