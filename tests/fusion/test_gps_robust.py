@@ -109,6 +109,20 @@ def test_a_start_inside_a_non_line_of_sight_run_is_left_when_the_map_says_so() -
     assert all(err < 5.0 for _, err, _ in back[taken:]), back
 
 
+def test_a_non_line_of_sight_run_begun_at_the_standstill_is_left_when_it_ends() -> None:
+    """The fixes leap 50 m east while the car still stands (5 s in), the filter starts on
+    them, and they leap back 30 s later: no map says which track is right, but the leap at a
+    standstill was a change of the error, and its return is followed at that fix. A run that
+    begins and ends within the standstill leaves nothing behind."""
+    _, fixes = _run(_drive(120.0, [(5.0, 40.0, 50.0)]))
+    assert all(err > 40.0 for t, err, _ in fixes if 12.0 <= t < 40.0)
+    back = [f for f in fixes if f[0] >= 40.0]
+    assert back[0][2] == "re-acquired: the fixes jumped back"
+    assert all(err < 3.0 for _, err, _ in back), back
+    road, _ = _run(_drive(STILL_S + 5.0, [(4.0, 8.0, 50.0)]))
+    assert road.state.initialized and road.state.followed_jump is None
+
+
 def test_the_map_makes_the_reported_sigma_hold_an_error_the_fixes_share() -> None:
     """Fixes 8 m east of the road all drive long, with a sigma of 1 m: their NIS cannot see
     an error the estimate shares, the road can, and the reported sigma takes it."""

@@ -76,6 +76,7 @@ from roadgraph.geometry import LocalFrame, bearing_rad
 MAX_PLAUSIBLE_SPEED_MPS = 70.0
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
+STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
 
 
 @dataclass
@@ -110,6 +111,10 @@ class RoadState:
     gated_offset_m: tuple[float, float] | None = None  # where the refused run's first fix lay
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
+    still_fixes: tuple[int, float, float] = (0, 0.0, 0.0)  # before start-up, fixes while the
+    # odometer says the car stands: (count, mean east, mean north) since the last jump
+    still_before_jump: tuple[float, float] | None = None  # ... the mean before that jump
+    still_jump: tuple[float, float, float] | None = None  # ... and the jump (t, east, north)
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
     gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
     gps_unseen_var_m2: float = 0.0  # of that, what the fixes' sigma does not hold: an error
@@ -383,6 +388,8 @@ class RoadFilter:
             return
         east, north = self._local(fix)
         sigma = self._sigma_m(fix)
+        if self._standing():
+            self._remember_still_fix(fix.t, east, north, sigma)
         heading = self._gps_course(fix)
         speed = self._measured_speed(fix)
         first = s.first_fix
@@ -410,7 +417,34 @@ class RoadFilter:
                              speed or (0.0, cfg.initial_speed_sigma_mps ** 2))
         s.initialized = True
         s.first_fix = None
+        if s.still_jump is not None:  # its return is the end of a non-line-of-sight run
+            s.followed_jump, s.still_jump = s.still_jump, None
+        s.still_fixes, s.still_before_jump = (0, 0.0, 0.0), None
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
+
+    def _remember_still_fix(self, t: float, east: float, north: float, sigma_m: float) -> None:
+        """Before start-up, fixes while the car stands still: a leap of their mean (beyond
+        ``jump_spread_m`` or 4 sigma) is a change of their error, not a move. The filter
+        then starts as if it had followed that jump, so that the fixes leaping back by it
+        (the end of a non-line-of-sight run begun at the standstill) are followed at once
+        (:meth:`_jumps_back`), not refused as a jump away from the track for up to
+        ``max_jump_s``: in the tune split, 6 of the 8 drives with a matched error above 50 m
+        while GPS was present had started inside such a run."""
+        s, cfg = self.state, self.config
+        n, mean_e, mean_n = s.still_fixes
+        if n and math.hypot(east - mean_e, north - mean_n) > max(cfg.jump_spread_m,
+                                                                  4.0 * sigma_m):
+            back = s.still_before_jump
+            if back is not None and math.hypot(east - back[0], north - back[1]) <= \
+                    max(cfg.jump_spread_m, 4.0 * sigma_m):
+                s.still_jump, s.still_before_jump = None, None  # back where they were
+            else:  # a leap from a fix or two is no jump of theirs, but one back to them is
+                s.still_jump = (t, east - mean_e, north - mean_n) \
+                    if n >= STILL_CLUSTER_MIN_FIXES else None
+                s.still_before_jump = (mean_e, mean_n)
+            n, mean_e, mean_n = 0, 0.0, 0.0
+        n += 1
+        s.still_fixes = (n, mean_e + (east - mean_e) / n, mean_n + (north - mean_n) / n)
 
     def _odometer_agrees(self, moved_m: float, spread_m: float) -> bool:
         """Two fixes ``moved_m`` apart are as far apart as the odometer drove (within their
