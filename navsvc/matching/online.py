@@ -142,6 +142,11 @@ class OnlineMatcher:
     def _check_lost(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition | None:
         """Off road (far from the road) or lost (moving against it) for long enough."""
         c, s = self.config, self.state
+        if proj.distance_m > c.startup_radius_m[1]:  # the estimate jumped (re-acquired GPS)
+            # farther than start-up would look: no road this far off is still the one driven
+            # (a GPS-only drive reported "on road" 1.6 km from it for a second)
+            s.edge, s.region, s.far_since_t, s.poor_fit_since_t = None, None, None, None
+            return self._start(e)
         far = proj.distance_m > max(c.off_road_distance_m, 4.0 * e.tracking_sigma_m)
         s.far_since_t = (s.far_since_t if s.far_since_t is not None else e.t) if far else None
         against = e.speed_mps >= c.min_speed_for_heading_mps and s.region is None and \

@@ -97,6 +97,17 @@ def test_off_road_after_a_while_then_back() -> None:
     assert back.state == MatchState.ON_ROAD and edge_of(back) == (3, 0)
 
 
+def test_an_estimate_that_jumps_far_from_its_road_leaves_it_at_once() -> None:
+    """Beyond the start-up search radius the road is no longer the one driven: no "on road"
+    150 m from it, where a nearer drift waits ``off_road_after_s``."""
+    matcher = OnlineMatcher(cross_graph())
+    matcher.update(estimate(0.0, 0.0, -50.0, 0.0))
+    jumped = matcher.update(estimate(0.1, 160.0, -50.0, 0.0))
+    assert jumped.state == MatchState.OFF_ROAD and jumped.edge is None
+    back = matcher.update(estimate(0.2, 95.0, 1.0, 90.0))  # onto the east arm, at once
+    assert back.state == MatchState.ON_ROAD and edge_of(back) == (0, 2)
+
+
 def test_lost_when_moving_against_the_road() -> None:
     matcher = OnlineMatcher(cross_graph())
     matcher.update(estimate(0.0, 0.0, -80.0, 0.0))
