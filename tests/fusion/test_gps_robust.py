@@ -3,6 +3,7 @@ a jump away from a settled track is refused, a followed jump that comes back is 
 and the gyro bias is known from the standstill before the drive."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -130,6 +131,18 @@ def test_a_non_line_of_sight_run_begun_at_the_standstill_is_left_when_it_ends() 
     back = [f for f in fixes if f[0] >= 40.0]
     assert back[0][2] == "re-acquired: the fixes jumped back"
     assert all(err < 2.0 * 3.0 for _, err, _ in back), back  # twice the fixes' sigma
+
+
+def test_start_up_waits_out_a_fix_that_leapt_from_the_one_before() -> None:
+    """The first fix once moving lies 40 m east of the track, with the receiver's course:
+    the filter does not start on it (the odometer drove 10 m since the fix before) but once
+    two fixes agree with the odometer, within their error."""
+    packets = [replace(p, heading_rad=0.0, speed_mps=SPEED_MPS)
+               if isinstance(p, GpsFix) and p.t > STILL_S else p
+               for p in _drive(30.0, [(STILL_S + 0.5, STILL_S + 1.5, 40.0)])]
+    _, fixes = _run(packets)
+    assert fixes[0][2] == "initialised from GPS" and fixes[0][0] > STILL_S + 1.5
+    assert all(err < 5.0 for _, err, _ in fixes), fixes
 
 
 def test_a_leap_at_the_standstill_that_comes_back_leaves_nothing_behind() -> None:

@@ -391,6 +391,7 @@ class RoadFilter:
             return
         east, north = self._local(fix)
         sigma = self._sigma_m(fix)
+        previous = s.last_start_up_fix
         self._forget_still_jump_undone(east, north, sigma)
         if self._standing():
             self._remember_still_fix(fix.t, east, north, sigma)
@@ -419,6 +420,9 @@ class RoadFilter:
                 s.first_fix, s.turned_rad, s.travelled_m = (fix.t, east, north, sigma), 0.0, 0.0
             s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
             return
+        if self._leapt_from(previous, east, north, sigma):
+            s.gps = GpsUsage(False, 0.0, "initialising: the fix leapt from the one before")
+            return
         self._reset_from_gps(fix, east, north, heading,
                              speed or (0.0, cfg.initial_speed_sigma_mps ** 2))
         s.initialized = True
@@ -430,6 +434,21 @@ class RoadFilter:
         s.still_fixes, s.still_before_jump = (0, 0.0, 0.0, 0.0), None
         s.last_start_up_fix = None
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
+
+    def _leapt_from(self, previous: tuple[float, float, float] | None, east: float,
+                    north: float, sigma_m: float) -> bool:
+        """Start-up waits when the fix lies farther from the fix before it than the odometer
+        drove between them, by more than 3 sigma of the two: one of them is an outlier, and
+        starting on it with its own sigma had the next fixes refused as too far off (Andorra
+        162 of the tune split started 22 m off and took 13 s to come back: 1.27 -> 0.31x
+        raw GPS). Without an odometer nothing says how far the car drove."""
+        s = self.state
+        if previous is None or OdometerSpeed not in self.profile.measurements or \
+                s.odo_speed_mps is None or s.travelled_m < previous[2]:
+            return False
+        driven = s.travelled_m - previous[2]
+        return math.hypot(east - previous[0], north - previous[1]) - driven > \
+            3.0 * math.sqrt(2.0) * sigma_m
 
     def _start_between_tracks(self, jump: tuple[float, float, float]) -> None:
         """Start-up after the fixes leapt at a standstill (:meth:`_remember_still_fix`): no
