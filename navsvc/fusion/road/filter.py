@@ -391,8 +391,8 @@ class RoadFilter:
             return
         east, north = self._local(fix)
         sigma = self._sigma_m(fix)
-        previous = s.last_start_up_fix
-        self._forget_still_jump_undone(east, north, sigma)
+        step = self._step_from_last_start_up_fix(east, north)
+        self._forget_still_jump_undone(step, sigma)
         if self._standing():
             self._remember_still_fix(fix.t, east, north, sigma)
         else:  # the next standstill is somewhere else
@@ -420,7 +420,7 @@ class RoadFilter:
                 s.first_fix, s.turned_rad, s.travelled_m = (fix.t, east, north, sigma), 0.0, 0.0
             s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
             return
-        if self._leapt_from(previous, east, north, sigma):
+        if self._leapt(step, sigma):
             s.gps = GpsUsage(False, 0.0, "initialising: the fix leapt from the one before")
             return
         self._reset_from_gps(fix, east, north, heading,
@@ -435,20 +435,28 @@ class RoadFilter:
         s.last_start_up_fix = None
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
 
-    def _leapt_from(self, previous: tuple[float, float, float] | None, east: float,
-                    north: float, sigma_m: float) -> bool:
+    def _step_from_last_start_up_fix(self, east: float, north: float
+                                     ) -> tuple[float, float, float] | None:
+        """Before start-up, the step (east, north) from the fix before to this one and the
+        odometer's distance between them (None for the first, or after the distance was
+        started over); this fix becomes the one before."""
+        s = self.state
+        last, s.last_start_up_fix = s.last_start_up_fix, (east, north, s.travelled_m)
+        if last is None or s.travelled_m < last[2]:
+            return None
+        return east - last[0], north - last[1], s.travelled_m - last[2]
+
+    def _leapt(self, step: tuple[float, float, float] | None, sigma_m: float) -> bool:
         """Start-up waits when the fix lies farther from the fix before it than the odometer
         drove between them, by more than 3 sigma of the two: one of them is an outlier, and
         starting on it with its own sigma had the next fixes refused as too far off (Andorra
         162 of the tune split started 22 m off and took 13 s to come back: 1.27 -> 0.31x
         raw GPS). Without an odometer nothing says how far the car drove."""
-        s = self.state
-        if previous is None or OdometerSpeed not in self.profile.measurements or \
-                s.odo_speed_mps is None or s.travelled_m < previous[2]:
+        if step is None or OdometerSpeed not in self.profile.measurements or \
+                self.state.odo_speed_mps is None:
             return False
-        driven = s.travelled_m - previous[2]
-        return math.hypot(east - previous[0], north - previous[1]) - driven > \
-            3.0 * math.sqrt(2.0) * sigma_m
+        step_e, step_n, driven_m = step
+        return math.hypot(step_e, step_n) - driven_m > 3.0 * math.sqrt(2.0) * sigma_m
 
     def _start_between_tracks(self, jump: tuple[float, float, float]) -> None:
         """Start-up after the fixes leapt at a standstill (:meth:`_remember_still_fix`): no
@@ -475,16 +483,16 @@ class RoadFilter:
         s.P[np.ix_(bias, position)] -= spread
         s.gps_bias_bound_sigma_m = max(s.gps_bias_bound_sigma_m, float(np.hypot(*half)))
 
-    def _forget_still_jump_undone(self, east: float, north: float, sigma_m: float) -> None:
+    def _forget_still_jump_undone(self, step: tuple[float, float, float] | None,
+                                  sigma_m: float) -> None:
         """Before start-up, a jump at a standstill is forgotten when a later step between two
         fixes undoes it (beyond what the odometer drove between them): the run ended
         while the car was already moving (gh-issue-13 74 of the tune split)."""
         s = self.state
-        last, s.last_start_up_fix = s.last_start_up_fix, (east, north, s.travelled_m)
-        if s.still_jump is None or last is None or s.travelled_m < last[2]:
+        if s.still_jump is None or step is None:
             return
-        step_e, step_n = east - last[0], north - last[1]
-        driven = s.travelled_m - last[2] + max(self.config.jump_spread_m, 4.0 * sigma_m)
+        step_e, step_n, driven_m = step
+        driven = driven_m + max(self.config.jump_spread_m, 4.0 * sigma_m)
         if math.hypot(step_e, step_n) > driven >= math.hypot(step_e + s.still_jump[1],
                                                               step_n + s.still_jump[2]):
             s.still_jump = None
