@@ -212,6 +212,25 @@ def test_the_gps_bias_states_stay_within_their_bound() -> None:
     assert 0.0 < largest <= config.gps_bias_max_sigmas + 1e-9
 
 
+def test_fixes_refused_past_the_gate_leave_the_gyro_bias_alone() -> None:
+    """A heading knocked 60 degrees off on a track not yet settled: the fixes run away from
+    the estimate and are refused, each still pulling; the pull moves position, heading and
+    speed, never the gyro bias (its linearisation does not hold that far off: a pull once
+    put 4.5 deg/s into it and the heading spun for minutes)."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    refused, worst_rps = 0, 0.0
+    for p in _drive(90.0, []):
+        if isinstance(p, GpsFix) and p.t == 30.0:
+            road.state.x[HEADING] += math.radians(60.0)
+            road.state.tracking_since_t = None  # as just after start-up
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and p.t > 30.0 and e.gps is not None:
+                refused += e.gps.reason == "down-weighted: innovation too large"
+                worst_rps = max(worst_rps, abs(road.state.x[GYRO_BIAS] - GYRO_BIAS_RPS))
+    assert refused >= 10
+    assert worst_rps < math.radians(0.2)
+
+
 def test_weighted_modes_blend_only_what_gps_measures() -> None:
     """The thesis's weighted sums move position (and heading and speed, from a course the
     fixes' track gives when the receiver sends none), never the latency; the GPS bias states

@@ -77,6 +77,9 @@ MAX_PLAUSIBLE_SPEED_MPS = 70.0
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
+SENSOR_ERRORS = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)  # slow states: a fix past
+# the gate leaves them alone; in the rules and fuzzy modes, the states GPS calibrates by a
+# Kalman gain (the thesis's weights decide position, heading and speed)
 
 
 @dataclass
@@ -263,13 +266,20 @@ class RoadFilter:
         """Kalman update; with ``gate_dof``, refuse (return None) past the chi-square gate."""
         return self._update_linearised(m.model(self.state.x), gate_dof)
 
-    def _update_linearised(self, m: Linearised, gate_dof: int | None = None) -> float | None:
-        """:meth:`_update` of a measurement already taken at the state."""
+    def _update_linearised(self, m: Linearised, gate_dof: int | None = None,
+                           leaving: tuple[int, ...] = ()) -> float | None:
+        """:meth:`_update` of a measurement already taken at the state; the states
+        ``leaving`` keep their values (a zero gain, :func:`kalman.correct_leaving`)."""
         z, h, H, R = m
         s = self.state
         limit = math.inf if gate_dof is None else \
             kalman.gate_limit(gate_dof, self.config.gps_gate_scale)
-        s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        if leaving:
+            nis = kalman.nis(s.P, H, R, z - h)
+            if nis <= limit:
+                s.x, s.P = kalman.correct_leaving(s.x, s.P, z, h, H, R, leaving)
+        else:
+            s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
         if not nis <= limit:
             return None
         if s.x[SPEED] < 0.0 and self.profile.gps_alone:  # the same velocity as speed
@@ -881,7 +891,10 @@ class RoadFilter:
             s.gps = GpsUsage(False, 0.0, "re-acquiring: estimate far from GPS too long")
             return
         weight = cfg.gps_huber_nis / nis
-        self._update_linearised((z, h, H, R / weight))
+        # past the gate the error is not the small one the linearisation assumes: the pull
+        # leaves the sensor-error states alone (a fix 100 m off a track whose heading was
+        # 60 degrees wrong put 4.5 deg/s into the gyro bias, and the heading spun for minutes)
+        self._update_linearised((z, h, H, R / weight), leaving=SENSOR_ERRORS)
         if s.gated_fixes >= cfg.inflate_after_gated_fixes:
             s.P[X_M, X_M] += R[0, 0] * dt_s
             s.P[Y_M, Y_M] += R[1, 1] * dt_s
@@ -916,9 +929,6 @@ class RoadFilter:
             _reset_variance(s.P, SPEED, 1.0)
             s.gated_courses = 0
 
-    # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
-    # position, heading and speed)
-    CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
     GYRO_BIAS_SIGMAS = 3.0  # rules, fuzzy: the gyro (or steering) bias within this many
     # of its starting sigma (MEMS gyros: within a degree or two a second)
     ACCEL_BIAS_LIMIT_MPS2 = 0.5  # ... and the forward accelerometer's within this
@@ -1098,7 +1108,7 @@ class RoadFilter:
         """The thesis's weighted sum: a fixed gain of ``weight`` from each row of the
         measurement to the state it measures (``states``, in row order; None: to none), none
         to any other state the thesis keeps (a GPS position's Jacobian reaches speed,
-        heading, latency and bias too). The sensor-error states (``CALIBRATED``), which
+        heading, latency and bias too). The sensor-error states (``SENSOR_ERRORS``), which
         the thesis does not have, take their Kalman gain from the same measurement: a gyro
         bias or an odometer scale left alone integrated into drift that a 0.04/s position
         pull cannot hold. The Joseph form keeps ``P`` right for this gain."""
@@ -1111,7 +1121,7 @@ class RoadFilter:
         if float(y @ S_inv @ y) <= kalman.gate_limit(len(z)):  # past the gate the error is
             # not the small one the linearisation assumes (a heading 160 degrees off put
             # 7 deg/s into the gyro bias): the thesis's weights alone
-            calibrated = list(self.CALIBRATED)
+            calibrated = list(SENSOR_ERRORS)
             K[calibrated, :] = (PHt @ S_inv)[calibrated, :]
         for row, state in enumerate(states):
             if state is not None:
