@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from navsvc.fusion import FusionConfig, GpsMode
+from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
 from navsvc.fusion.gnss import RoadDistance
 from navsvc.fusion.road.filter import RoadFilter
 from navsvc.fusion.road.motion import (
@@ -143,6 +143,24 @@ def test_start_up_waits_out_a_fix_that_leapt_from_the_one_before() -> None:
     _, fixes = _run(packets)
     assert fixes[0][2] == "initialised from GPS" and fixes[0][0] > STILL_S + 1.5
     assert all(err < 5.0 for _, err, _ in fixes), fixes
+
+
+def test_without_an_odometer_a_leap_at_the_standstill_is_no_start_up_heading() -> None:
+    """GPS alone: the fixes leap 40 m east while the car stands, then it drives north. The
+    leap lies off the line of the fixes before it (no car accelerates like that), so the
+    heading's baseline starts again after it, and start-up comes once the car moves, facing
+    north (the leap made a heading east and a speed of 40 m/s)."""
+    packets = [p for p in _drive(40.0, [(STILL_S - 4.0, 40.0, 40.0)])
+               if isinstance(p, GpsFix)]
+    road = RoadFilter(FusionConfig(sensors=SensorConfig.GPS_ONLY), FRAME)
+    start = None
+    for p in packets:
+        for e in road.apply(p):
+            if start is None and e.initialized:
+                start = e
+    assert start is not None and start.t > STILL_S
+    assert abs(math.remainder(start.heading_rad, 2.0 * math.pi)) < math.radians(20.0)
+    assert start.speed_mps < 2.0 * SPEED_MPS
 
 
 def test_a_leap_at_the_standstill_that_comes_back_leaves_nothing_behind() -> None:

@@ -74,6 +74,7 @@ from navsvc.types import (
 from roadgraph.geometry import LocalFrame, bearing_rad
 
 MAX_PLAUSIBLE_SPEED_MPS = 70.0
+MAX_PLAUSIBLE_ACCEL_MPS2 = 6.0  # a car's horizontal acceleration (braking hard: 8)
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
@@ -119,8 +120,8 @@ class RoadState:
     # latest) since the last jump
     still_before_jump: tuple[float, float] | None = None  # ... the mean before that jump
     still_jump: tuple[float, float, float] | None = None  # ... and the jump (t, east, north)
-    last_start_up_fix: tuple[float, float, float] | None = None  # before start-up, the latest
-    # fix (east, north, odometer distance then)
+    start_up_fixes: tuple[tuple[float, float, float, float], ...] = ()  # before start-up,
+    # the latest three fixes (t, east, north, odometer distance then), the latest last
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
     gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
     gps_unseen_var_m2: float = 0.0  # of that, what the fixes' sigma does not hold: an error
@@ -401,12 +402,16 @@ class RoadFilter:
             return
         east, north = self._local(fix)
         sigma = self._sigma_m(fix)
-        step = self._step_from_last_start_up_fix(east, north)
+        step = self._step_from_last_start_up_fix(fix.t, east, north)
         self._forget_still_jump_undone(step, sigma)
         if self._standing():
             self._remember_still_fix(fix.t, east, north, sigma)
         else:  # the next standstill is somewhere else
             s.still_fixes, s.still_before_jump = (0, 0.0, 0.0, 0.0), None
+        if self._off_the_fixes_line(sigma):
+            s.first_fix, s.turned_rad, s.travelled_m = (fix.t, east, north, sigma), 0.0, 0.0
+            s.gps = GpsUsage(False, 0.0, "initialising: the fix leapt off the fixes' line")
+            return
         heading = self._gps_course(fix)
         speed = self._measured_speed(fix)
         first = s.first_fix
@@ -442,19 +447,20 @@ class RoadFilter:
             self._start_between_tracks(s.still_jump)
         s.still_jump = None
         s.still_fixes, s.still_before_jump = (0, 0.0, 0.0, 0.0), None
-        s.last_start_up_fix = None
+        s.start_up_fixes = ()
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
 
-    def _step_from_last_start_up_fix(self, east: float, north: float
+    def _step_from_last_start_up_fix(self, t: float, east: float, north: float
                                      ) -> tuple[float, float, float] | None:
         """Before start-up, the step (east, north) from the fix before to this one and the
         odometer's distance between them (None for the first, or after the distance was
         started over); this fix becomes the one before."""
         s = self.state
-        last, s.last_start_up_fix = s.last_start_up_fix, (east, north, s.travelled_m)
-        if last is None or s.travelled_m < last[2]:
+        last = s.start_up_fixes[-1] if s.start_up_fixes else None
+        s.start_up_fixes = (*s.start_up_fixes[-2:], (t, east, north, s.travelled_m))
+        if last is None or s.travelled_m < last[3]:
             return None
-        return east - last[0], north - last[1], s.travelled_m - last[2]
+        return east - last[1], north - last[2], s.travelled_m - last[3]
 
     def _leapt(self, step: tuple[float, float, float] | None, sigma_m: float) -> bool:
         """Start-up waits when the fix lies farther from the fix before it than the odometer
@@ -467,6 +473,24 @@ class RoadFilter:
             return False
         step_e, step_n, driven_m = step
         return math.hypot(step_e, step_n) - driven_m > 3.0 * math.sqrt(2.0) * sigma_m
+
+    def _off_the_fixes_line(self, sigma_m: float) -> bool:
+        """Without an odometer (:meth:`_leapt` needs one): the latest start-up fix lies off
+        the line of the two before it, farther than a car accelerating at
+        ``MAX_PLAUSIBLE_ACCEL_MPS2`` could leave it, by 3 sigma of the three fixes. A leap of
+        the fixes (non-line-of-sight) while the car stood became the start-up heading,
+        160 degrees off, and a speed of 7 m/s (Monaco 16 of the tune split, accelerometer
+        configurations). The heading's baseline then starts again at this fix."""
+        fixes = self.state.start_up_fixes
+        if OdometerSpeed in self.profile.measurements or len(fixes) < 3:
+            return False
+        (t0, e0, n0, _), (t1, e1, n1, _), (t2, e2, n2, _) = fixes
+        if t1 <= t0 or t2 <= t1:
+            return False
+        r = (t2 - t1) / (t1 - t0)  # the step to the latest fix, as one of the step before
+        off_m = math.hypot(e2 - e1 - r * (e1 - e0), n2 - n1 - r * (n1 - n0))
+        noise_m = 3.0 * sigma_m * math.sqrt(1.0 + (1.0 + r) ** 2 + r ** 2)
+        return off_m > 0.5 * MAX_PLAUSIBLE_ACCEL_MPS2 * (t2 - t1) * (t2 - t0) + noise_m
 
     def _start_between_tracks(self, jump: tuple[float, float, float]) -> None:
         """Start-up after the fixes leapt at a standstill (:meth:`_remember_still_fix`): no
