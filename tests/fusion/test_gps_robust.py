@@ -267,6 +267,22 @@ def test_weighted_modes_blend_only_what_gps_measures() -> None:
 
 
 
+def test_weighted_modes_take_a_course_from_the_fixes_no_more_than_its_variance() -> None:
+    """Fixes with no course, 20 m east for 10 s (a street canyon) as the car drives north:
+    the track of the fixes then points east of north, but a course drawn from positions is
+    taken by its Kalman gain, not by the thesis's weight for a receiver's course, and the
+    heading stays within 10 degrees of north (the thesis's weight turned it 23)."""
+    for mode in (GpsMode.RULES, GpsMode.FUZZY):
+        road = RoadFilter(FusionConfig(gps_mode=mode), FRAME)
+        worst_rad = 0.0
+        for p in _drive(60.0, [(40.0, 50.0, 20.0)], accuracy_m=3.0):
+            road.apply(p)
+            if p.t > 30.0:
+                worst_rad = max(worst_rad, abs(math.remainder(road.state.x[HEADING],
+                                                              2.0 * math.pi)))
+        assert worst_rad < math.radians(10.0), (mode, math.degrees(worst_rad))
+
+
 def _shift_by_one_fix(east_offset_m: float, road_distance: RoadDistance | None) -> float:
     """How far one fix ``east_offset_m`` off the drive moves a settled estimate east."""
     packets = _drive(60.0, [], accuracy_m=5.0)

@@ -1121,6 +1121,13 @@ class RoadFilter:
             # with an odometer the speed is its (GPS speed calibrates the odometer's scale)
             heading_var, speed_var = track_var or \
                 (course[1], cfg.gps_velocity_sigma_mps ** 2)
+            if track_var is not None:  # a course we drew from the fixes, not the
+                # receiver's: taken no more than its variance allows (the Kalman gain), as
+                # the thesis's weights assume a Doppler course (fixes 20 m off in a street
+                # canyon turned the heading 38 degrees, and dead reckoning ran 700 m away)
+                heading_sure = float(s.P[HEADING, HEADING])
+                heading_weight = min(heading_weight,
+                                     heading_sure / (heading_sure + heading_var))
             speed_state = None if OdometerSpeed in self.profile.measurements else SPEED
             self._blend(CourseAndSpeed(course[0], fix.speed_mps, math.sqrt(heading_var),
                                        math.sqrt(speed_var)).model(s.x),
