@@ -78,9 +78,10 @@ MAX_PLAUSIBLE_ACCEL_MPS2 = 6.0  # a car's horizontal acceleration (braking hard:
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
-SENSOR_ERRORS = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)  # slow states: a fix past
-# the gate leaves them alone; in the rules and fuzzy modes, the states GPS calibrates by a
-# Kalman gain (the thesis's weights decide position, heading and speed)
+SENSOR_ERRORS = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)  # in the rules and fuzzy
+# modes, the states GPS calibrates by a Kalman gain (the thesis's weights decide position,
+# heading and speed)
+TURN_RATE_ERRORS = (GYRO_BIAS, GYRO_SCALE)  # what a fix past the gate leaves alone (ekf)
 
 
 @dataclass
@@ -916,9 +917,10 @@ class RoadFilter:
             return
         weight = cfg.gps_huber_nis / nis
         # past the gate the error is not the small one the linearisation assumes: the pull
-        # leaves the sensor-error states alone (a fix 100 m off a track whose heading was
-        # 60 degrees wrong put 4.5 deg/s into the gyro bias, and the heading spun for minutes)
-        self._update_linearised((z, h, H, R / weight), leaving=SENSOR_ERRORS)
+        # leaves the turn-rate errors alone (a fix 100 m off a track whose heading was 60
+        # degrees wrong put 4.5 deg/s into the gyro bias, and the heading spun for minutes);
+        # along the track the error is linear in the odometer scale, which it still corrects
+        self._update_linearised((z, h, H, R / weight), leaving=TURN_RATE_ERRORS)
         if s.gated_fixes >= cfg.inflate_after_gated_fixes:
             s.P[X_M, X_M] += R[0, 0] * dt_s
             s.P[Y_M, Y_M] += R[1, 1] * dt_s
