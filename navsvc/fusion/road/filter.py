@@ -822,9 +822,19 @@ class RoadFilter:
         s.gps_bias_t = t
 
     def _tracking(self, t: float) -> None:
-        """A fix got through the gate: the track goes on (or starts again after a gap)."""
+        """A fix got through the gate: the track goes on, or starts again after a gap. With
+        dead reckoning, a gap bridged by it goes on when this fix is the first since the
+        gap and agrees with it (none refused in between): starting the track again, two
+        good fixes after an outage, let a non-line-of-sight run 76 m off be followed within
+        8 s, as a track too young to be trusted over a jump (tune split, 180 drives: mean log
+        fused/raw -1.1 %, 11 drives better and 4 worse; going on after refused fixes too
+        gave -4.0 %, but a drive 32 m off after its outage then refused the true fixes, and
+        its matched error rose from 50 to 117 m)."""
         s = self.state
-        if s.last_accepted_t is None or t - s.last_accepted_t > self.config.track_gap_s:
+        last = s.last_accepted_t
+        bridged = not self.profile.gps_alone and s.jump_since_t is None and \
+            s.gated_fixes == 0
+        if last is None or (t - last > self.config.track_gap_s and not bridged):
             s.tracking_since_t = t
         s.last_accepted_t, s.jump_since_t = t, None
 
