@@ -78,9 +78,6 @@ MAX_PLAUSIBLE_ACCEL_MPS2 = 6.0  # a car's horizontal acceleration (braking hard:
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
-SENSOR_ERRORS = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)  # in the rules and fuzzy
-# modes, the states GPS calibrates by a Kalman gain (the thesis's weights decide position,
-# heading and speed)
 TURN_RATE_ERRORS = (GYRO_BIAS, GYRO_SCALE)  # what a fix past the gate leaves alone (ekf)
 
 
@@ -965,6 +962,9 @@ class RoadFilter:
             _reset_variance(s.P, SPEED, 1.0)
             s.gated_courses = 0
 
+    # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
+    # position, heading and speed)
+    CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
     GYRO_BIAS_SIGMAS = 3.0  # rules, fuzzy: the gyro (or steering) bias within this many
     # of its starting sigma (MEMS gyros: within a degree or two a second)
     ACCEL_BIAS_LIMIT_MPS2 = 0.5  # ... and the forward accelerometer's within this
@@ -1151,7 +1151,7 @@ class RoadFilter:
         """The thesis's weighted sum: a fixed gain of ``weight`` from each row of the
         measurement to the state it measures (``states``, in row order; None: to none), none
         to any other state the thesis keeps (a GPS position's Jacobian reaches speed,
-        heading, latency and bias too). The sensor-error states (``SENSOR_ERRORS``), which
+        heading, latency and bias too). The sensor-error states (``CALIBRATED``), which
         the thesis does not have, take their Kalman gain from the same measurement: a gyro
         bias or an odometer scale left alone integrated into drift that a 0.04/s position
         pull cannot hold. The Joseph form keeps ``P`` right for this gain."""
@@ -1164,7 +1164,7 @@ class RoadFilter:
         if float(y @ S_inv @ y) <= kalman.gate_limit(len(z)):  # past the gate the error is
             # not the small one the linearisation assumes (a heading 160 degrees off put
             # 7 deg/s into the gyro bias): the thesis's weights alone
-            calibrated = list(SENSOR_ERRORS)
+            calibrated = list(self.CALIBRATED)
             K[calibrated, :] = (PHt @ S_inv)[calibrated, :]
         for row, state in enumerate(states):
             if state is not None:
