@@ -10,6 +10,7 @@ import numpy as np
 from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
 from navsvc.fusion.gnss import RoadDistance
 from navsvc.fusion.road.filter import RoadFilter
+from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.fusion.road.motion import (
     GPS_BIAS_E,
     GPS_BIAS_N,
@@ -328,3 +329,34 @@ def test_a_sharper_fix_does_not_push_the_offset_the_bias_holds_into_the_position
     road.apply(GpsFix(60.0, lat_deg=lat, lon_deg=lon, accuracy_m=2.0))
     assert abs(float(road.state.x[0]) - before) < 3.0
 
+
+
+def _across_after_the_road(sensors: str) -> tuple[float, float, float]:
+    """Fixes with a 3 m sigma lying 8 m east of the road for two minutes, then the road
+    itself (map feedback, 1 m across): the estimate's error across the road, the reported
+    variance across it, and the unseen variance the map had learnt."""
+    config = FusionConfig(sensors=SensorConfig(sensors))
+    road = RoadFilter(config, FRAME, _north_road_distance)
+    packets = _drive(120.0, [(0.0, 120.0, 8.0)], accuracy_m=3.0)
+    for p in packets:
+        road.apply(p)
+    north = _north_m(road.state.t or 0.0)
+    for _ in range(5):
+        road.correct(RoadConstraint(0.0, north, 0.0, 1.0, math.radians(5.0)))
+    e = road.estimate()
+    assert e is not None
+    return abs(e.x_m), float(e.position_cov_m2[0, 0]), road.state.gps_unseen_var_m2
+
+
+def test_the_unseen_error_scales_a_dead_reckoned_covariance_and_adds_to_gps_alone() -> None:
+    """The map saw the fixes 8 m off while their sigma said 3 m. Once the road has put the
+    dead-reckoned estimate back on it, the error the fixes share is no longer the estimate's:
+    the reported variance across the road is the filter's own scaled by one plus the fixes'
+    unseen share (here 5.6 m2), not that unseen 64 m2 added in full. On GPS alone the
+    estimate follows the fixes, so the reported variance takes it in full."""
+    error_m, across_var, unseen_var = _across_after_the_road("gyro_odometer")
+    assert unseen_var > 30.0
+    assert error_m <= 2.45 * math.sqrt(across_var)
+    assert across_var < unseen_var / 3.0
+    _, across_var_gps, unseen_var_gps = _across_after_the_road("gps_only")
+    assert across_var_gps >= unseen_var_gps > 30.0

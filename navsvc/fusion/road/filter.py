@@ -123,7 +123,8 @@ class RoadState:
     gps_nis_mean: float = 2.0  # running mean of the fixes' NIS (2 when their sigma is right)
     gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
     gps_unseen_var_m2: float = 0.0  # of that, what the fixes' sigma does not hold: an error
-    # the estimate shares with the fixes, reported in its covariance (not filtered on)
+    # the estimate shares with the fixes, reported in its covariance (not filtered on) ...
+    gps_unseen_ratio: float = 0.0  # ... and that over the fixes' variance (ekf)
     gps_bias_t: float | None = None  # time of the GPS bias states
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     off_road_since_t: float | None = None  # the estimate off the roads since (with a map)
@@ -897,11 +898,16 @@ class RoadFilter:
         """The fixes' error as the map sees it (:class:`MapSeenError`; learnt while moving,
         on an initialised filter with a map), and how much more variance it has than
         ``sigma_m``, the sigma the filter weighs them by (``gps_unseen_var_m2``, at most
-        ``gps_map_max_sigma_m``).
+        ``gps_map_max_sigma_m``), also as a share of that sigma's variance.
 
         Only the reported covariance takes that: as a floor under the sigma the filter
         weighs the fixes by, the bias states took up offsets of 30 m and the estimate stayed
-        there on good fixes (tune split: two drives from 0.2-0.5x raw GPS to 1-1.5x)."""
+        there on good fixes (tune split: two drives from 0.2-0.5x raw GPS to 1-1.5x). In ekf
+        it scales the position covariance (:meth:`_position_cov_reported`): added in full,
+        it gave a track that averages its fixes down to a third of their error the fixes'
+        own sigma, and the 2.45-sigma circle held 99.4 % of the errors on the median
+        synthetic drive (tune split, 180 drives: 98.1 -> 97.5 % on the median drive, 55 ->
+        58 drives in the 90-98 % band, NEES per dof 0.48 -> 0.64; estimates unchanged)."""
         s, cfg = self.state, self.config
         if self.road_distance is not None and s.initialized and s.x[SPEED] >= 1.0:
             d = self.road_distance(east, north, float(s.x[HEADING]), cfg.road_fit_radius_m,
@@ -909,6 +915,7 @@ class RoadFilter:
             s.gps_map_error = s.gps_map_error.updated(d, dt_s, cfg.gps_map_memory_s)
         s.gps_unseen_var_m2 = s.gps_map_error.unseen_var_m2(sigma_m, cfg.gps_map_memory_s,
                                                             cfg.gps_map_max_sigma_m)
+        s.gps_unseen_ratio = s.gps_unseen_var_m2 / sigma_m ** 2
 
     def _refused_fix(self, fix: GpsFix, east: float, north: float, m: Linearised,
                      nis: float, dt_s: float) -> None:
@@ -1200,15 +1207,29 @@ class RoadFilter:
 
     def _estimate(self) -> FusedEstimate:
         s = self.state
+        position_cov, unseen_var = self._position_cov_reported()
         return FusedEstimate(
             t=float(s.t or 0.0), x_m=float(s.x[X_M]), y_m=float(s.x[Y_M]),
             heading_rad=float(s.x[HEADING] % (2.0 * math.pi)), speed_mps=float(s.x[SPEED]),
-            yaw_rate_rps=float(s.x[HEADING_RATE]),
-            position_cov_m2=s.P[:2, :2] + s.gps_unseen_var_m2 * np.eye(2),
+            yaw_rate_rps=float(s.x[HEADING_RATE]), position_cov_m2=position_cov,
             heading_sigma_rad=float(math.sqrt(max(s.P[HEADING, HEADING], 0.0))),
             initialized=s.initialized, gps=s.gps,
-            gps_bias_var_m2=self._bias_share_m2() + s.gps_unseen_var_m2,
+            gps_bias_var_m2=self._bias_share_m2() + unseen_var,
         )
+
+    def _position_cov_reported(self) -> tuple[Array, float]:
+        """The position covariance with the fixes' unseen error in it, and the variance
+        that error adds. With dead reckoning the Kalman covariance (ekf) is linear in the
+        fixes' variance, so it is scaled as for fixes that much noisier. An estimate on GPS
+        alone follows the fixes, and the weighted modes' covariance does not follow their
+        variance: those get it added in full (scaled, GPS alone held 86.8 % of its errors
+        in the 2.45-sigma circle against 88.1 %; tune split, 30 drives)."""
+        s = self.state
+        P = s.P[:2, :2]
+        if self.config.gps_mode == GpsMode.EKF and not self.profile.gps_alone:
+            return P * (1.0 + s.gps_unseen_ratio), \
+                s.gps_unseen_ratio * float(P[0, 0] + P[1, 1]) / 2.0
+        return P + s.gps_unseen_var_m2 * np.eye(2), s.gps_unseen_var_m2
 
 
 def _tracking_variance_m2(P: Array) -> float:
