@@ -50,6 +50,8 @@ class FusionConfig:
     gps_bias_tau_s: float = 30.0  # ekf: its time constant (receivers: 10-60 s)
     track_gap_s: float = 3.0  # ekf: fixes further apart than this break the GPS track
     track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump
+    track_confirm_nis: float = 2.0  # ekf with dead reckoning: a fix this close (NIS) to the
+    # track while a jump is being refused confirms the track carried through a gap
     max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused this long
     # at most (non-line-of-sight runs last 10-60 s) ...
     jump_spread_m: float = 30.0  # ... while its fixes stay this close to the first (or 4

@@ -110,6 +110,7 @@ TABLE: tuple[Parameter, ...] = (
     _p("fusion.inflate_after_gated_fixes", "fusion gating", 1, 10, bits=4, integer=True),
     _p("fusion.min_speed_for_gps_heading_mps", "fusion gating", 0.5, 8.0),
     _p("fusion.track_settled_s", "fusion gating", 1.0, 30.0, "log"),
+    _p("fusion.track_confirm_nis", "fusion gating", 0.5, 10.0, "log"),
     _p("fusion.max_jump_s", "fusion gating", 5.0, 120.0, "log"),
     # the thesis's rule-based GPS fusion (gps_mode "rules")
     _p("fusion.rules.position_weight_per_s", "gps rules", 0.005, 0.5, "log",

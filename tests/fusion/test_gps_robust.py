@@ -213,6 +213,18 @@ def test_a_jump_two_fixes_after_an_outage_is_refused_as_from_the_track() -> None
     assert all(reason.startswith("refused: jumped") for _, _, reason in during)
 
 
+def test_one_good_fix_between_refused_jumps_confirms_the_dead_reckoned_track() -> None:
+    """After a 20 s outage the fixes come back 50 m off (refused as a jump), then one fix
+    agrees with dead reckoning, then they leap 50 m off again: that fix confirmed the track
+    carried through the outage, so the second leap is refused too, not followed as fixes
+    on a track begun again at that one fix would be."""
+    packets = [p for p in _drive(130.0, [(60.0, 80.0, 50.0), (81.0, 100.0, 50.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 60.0)]
+    _, fixes = _run(packets)
+    second = [f for f in fixes if 81.0 <= f[0] < 100.0]
+    assert all(err < 10.0 and reason.startswith("refused: jumped")
+               for _, err, reason in second), second
+
 def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
     """Fixes that jump 50 m off a track not settled yet (2 s after start-up) are followed;
     when they jump back by the same offset, the filter is back on them at that fix, and the
