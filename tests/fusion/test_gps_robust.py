@@ -372,3 +372,36 @@ def test_the_unseen_error_scales_a_dead_reckoned_covariance_and_adds_to_gps_alon
     assert across_var < unseen_var / 3.0
     _, across_var_gps, unseen_var_gps = _across_after_the_road("gps_only")
     assert across_var_gps >= unseen_var_gps > 30.0
+
+
+def test_gps_alone_a_departure_after_a_stop_is_no_jump() -> None:
+    """GPS alone (fixes with the receiver's course and speed): north at 10 m/s, a 20 s
+    stop, then away east. At the stop the filter loses the heading (a standing receiver has
+    no course), so the fixes leaving it are no leap away from a settled track: they are
+    taken, not refused as a non-line-of-sight jump while the estimate stands."""
+    rng = np.random.default_rng(3)
+    fixes: list[GpsFix] = []
+    truth: dict[float, tuple[float, float]] = {}
+    east, north, speed = 0.0, 0.0, 0.0
+    for k in range(90):
+        t = float(k)
+        if t <= 30.0:
+            north, speed, heading = 10.0 * t, 10.0, 0.0
+        elif t <= 50.0:
+            speed, heading = 0.0, None
+        else:
+            speed, heading = min(2.5 * (t - 50.0), 10.0), math.pi / 2.0
+            east += speed
+        truth[t] = (east, north)
+        lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, 2.0), north + rng.normal(0.0, 2.0))
+        fixes.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=2.0, speed_mps=speed,
+                            heading_rad=heading))
+    road = RoadFilter(FusionConfig(sensors=SensorConfig.GPS_ONLY), FRAME)
+    after = []
+    for fix in fixes:
+        for e in road.apply(fix):
+            if fix.t > 50.0 and e.gps is not None:
+                error_m = math.hypot(e.x_m - truth[fix.t][0], e.y_m - truth[fix.t][1])
+                after.append((fix.t, round(error_m, 1), e.gps.reason))
+    assert not any(reason.startswith("refused: jumped") for _, _, reason in after), after
+    assert all(error_m < 10.0 for _, error_m, _ in after), after

@@ -680,6 +680,11 @@ class RoadFilter:
         self._widen_off_road(fix.t, roads_m)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
         sigma = white * math.sqrt(fixes_per_s)
+        course = self._gps_course(fix)
+        course_taken = course is not None and fix.speed_mps is not None and \
+            self._heading_unknown()
+        if course is not None and course_taken:
+            self._take_course(course, fix)
         z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
         y = z - h
         nis = kalman.nis(s.P, H, R, y)
@@ -710,13 +715,30 @@ class RoadFilter:
             s.followed_jump = (fix.t, *s.gated_offset_m)  # the filter followed a jump
         self._tracking(fix.t, nis)
         s.gated_fixes, s.first_gated_t = 0, None
-        course = self._gps_course(fix)
-        if course is not None and fix.speed_mps is not None:
+        if course is not None and fix.speed_mps is not None and not course_taken:
             self._fuse_gps_course(course[0], fix.speed_mps)
         elif self.profile.gps_alone and fix.speed_mps is not None and fix.speed_mps < 0.5:
             self._update(ZeroMotion(sigma_mps=0.3, sigma_rps=0.05))
         s.gps = GpsUsage(True, weight, "accepted" if weight == 1.0 else "down-weighted",
                          nis=nis)
+
+    def _heading_unknown(self) -> bool:
+        """The heading is less sure than ``heading_unknown_sigma_rad`` (GPS alone loses it at
+        every stop; any filter just after start-up or a long refusal)."""
+        return bool(self.state.P[HEADING, HEADING] > self.config.heading_unknown_sigma_rad ** 2)
+
+    def _take_course(self, course: tuple[float, float], fix: GpsFix) -> None:
+        """An unknown heading takes the receiver's course whole (ekf), and the speed its
+        measurement, before the fix's position is fused: a position update linearised about a
+        heading far off turns it anywhere (GPS alone leaving a stop swung from north through
+        east to south and back while its fixes were refused for 8 s)."""
+        s = self.state
+        s.x[HEADING] = course[0] % (2.0 * math.pi)
+        _reset_variance(s.P, HEADING, course[1])
+        speed = self._measured_speed(fix)
+        if speed is not None and OdometerSpeed not in self.profile.measurements:
+            s.x[SPEED] = speed[0]
+            _reset_variance(s.P, SPEED, speed[1])
 
     def _follow_jump(self, fix: GpsFix, z: Array, reason: str, nis: float) -> None:
         """The position goes where the fix puts it (undoing the latency), the GPS bias
@@ -869,7 +891,9 @@ class RoadFilter:
         ``max_jump_s`` at most, and only while the fixes stay near where they leapt to
         (``jump_spread_m`` or 4 sigma, plus ``jump_drift_mps`` for dead reckoning's own
         drift): fixes that run away from the estimate faster say the estimate is diverging,
-        not the GPS."""
+        not the GPS. A track whose heading is unknown refuses no jump: GPS alone loses it at
+        every stop, and the fixes of the car driving off were refused as a leap away from
+        the standing estimate."""
         s, cfg = self.state, self.config
         if not math.isfinite(nis):
             return False
@@ -888,6 +912,8 @@ class RoadFilter:
             return False  # no dead reckoning carried the track through the gap
         if s.last_accepted_t - s.tracking_since_t < cfg.track_settled_s:
             return False
+        if self._heading_unknown():
+            return False  # a track whose heading is unknown says nothing of where the car went
         s.jump_since_t = t
         s.jump_offset_m = (float(innovation[0]), float(innovation[1]))
         s.jump_fit = (0, 0.0, 0.0, 0.0, 0.0)
