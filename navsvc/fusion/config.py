@@ -68,6 +68,8 @@ class FusionConfig:
     gps_map_memory_s: float = 60.0  # ekf with a map: the fixes' distance from the roads is
     # learnt over this long (it measures their slowly changing error, which the NIS cannot)
     gps_map_max_sigma_m: float = 10.0  # ... a floor of at most this
+    gps_map_min_ratio: float = 0.25  # ... and, with dead reckoning, the reported position
+    # covariance scaled by that error's variance over the fixes', down to this
     road_fit_radius_m: float = 30.0  # roads farther than this count as this far
     road_fit_max_bearing_rad: float = math.radians(30.0)  # a road along the heading
     reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS

@@ -71,6 +71,15 @@ class MapSeenError:
         return MapSeenError(learnt_s, self.mean_sq_m2 + (d * d - self.mean_sq_m2) *
                             dt_s / learnt_s)
 
+    def variance_ratio(self, sigma_m: float, memory_s: float, max_sigma_m: float,
+                       min_ratio: float) -> float:
+        """The fixes' error variance as the map sees it over the variance of ``sigma_m``
+        (its mean square at most ``max_sigma_m`` squared), at least ``min_ratio``; 1 until
+        learnt over half the memory."""
+        if self.learnt_s < memory_s / 2.0 or sigma_m <= 0.0:
+            return 1.0
+        return max(min(self.mean_sq_m2, max_sigma_m ** 2) / sigma_m ** 2, min_ratio)
+
     def unseen_var_m2(self, sigma_m: float, memory_s: float, max_sigma_m: float) -> float:
         """How much more variance the fixes' error has (at most ``max_sigma_m`` squared)
         than the sigma a filter weighs them by; zero until learnt over half the memory."""

@@ -42,3 +42,33 @@ def test_a_far_fix_counts_at_three_rms_and_a_repeated_time_not_at_all() -> None:
     assert seen.updated(2.0, 0.0, MEMORY_S) == seen
     far = seen.updated(30.0, 1.0, MEMORY_S)  # a non-line-of-sight fix: counted as 6 m
     assert math.isclose(far.mean_sq_m2, 4.0 + (36.0 - 4.0) / 60.0)
+
+
+def test_the_variance_ratio_scales_both_ways_within_its_bounds() -> None:
+    """Fixes the map sees closer to the roads than their sigma says scale the reported
+    covariance down (to the floor at most); farther, up (to the cap); 1 until learnt."""
+    seen = MapSeenError()
+    for _ in range(29):
+        seen = seen.updated(2.0, 1.0, MEMORY_S)
+    assert seen.variance_ratio(4.0, MEMORY_S, 10.0, 0.25) == 1.0  # not half the memory yet
+    seen = seen.updated(2.0, 1.0, MEMORY_S)
+    assert math.isclose(seen.variance_ratio(4.0, MEMORY_S, 10.0, 0.1), 0.25)
+    assert seen.variance_ratio(8.0, MEMORY_S, 10.0, 0.25) == 0.25  # the floor
+    assert math.isclose(seen.variance_ratio(1.0, MEMORY_S, 10.0, 0.25), 4.0)
+    assert math.isclose(seen.variance_ratio(1.0, MEMORY_S, 1.5, 0.25), 2.25)  # the cap
+
+
+@given(st.lists(st.tuples(st.floats(0.0, 30.0), st.floats(0.0, 2.0)), max_size=100),
+       st.floats(0.5, 20.0), st.floats(0.05, 1.0))
+def test_the_variance_ratio_agrees_with_the_unseen_variance(
+        fixes: list[tuple[float, float]], sigma_m: float, floor: float) -> None:
+    """Above 1 the ratio is one plus the unseen variance over the sigma's; never below the
+    floor."""
+    seen = MapSeenError()
+    for distance, dt in fixes:
+        seen = seen.updated(distance, dt, MEMORY_S)
+    ratio = seen.variance_ratio(sigma_m, MEMORY_S, 10.0, floor)
+    unseen = seen.unseen_var_m2(sigma_m, MEMORY_S, 10.0)
+    assert ratio >= min(floor, 1.0)
+    if unseen > 0.0:
+        assert math.isclose(ratio, 1.0 + unseen / sigma_m ** 2, rel_tol=1e-9)
