@@ -73,6 +73,9 @@ class FusionConfig:
     road_fit_radius_m: float = 30.0  # roads farther than this count as this far
     road_fit_max_bearing_rad: float = math.radians(30.0)  # a road along the heading
     reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS
+    gps_lost_beyond_m: float = 150.0  # ekf: refused fixes farther than any non-line-of-sight
+    # error (20-80 m) from the estimate are no jump; such fixes ...
+    gps_lost_after_s: float = 2.0  # ... for this long (3 fixes at least) → start over from GPS
     inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad

@@ -405,3 +405,22 @@ def test_gps_alone_a_departure_after_a_stop_is_no_jump() -> None:
                 after.append((fix.t, round(error_m, 1), e.gps.reason))
     assert not any(reason.startswith("refused: jumped") for _, _, reason in after), after
     assert all(error_m < 10.0 for _, error_m, _ in after), after
+
+
+def test_fixes_beyond_any_non_line_of_sight_error_restart_a_lost_estimate() -> None:
+    """After a 20 s gap the fixes come back 200 m east of dead reckoning and stay there:
+    farther than any non-line-of-sight error, so the estimate is lost, not the fixes. It
+    starts over from them after 2 s (3 fixes), not after 30 s of refusing them, and is on
+    them within 5 fixes of that."""
+    packets = [p for p in _drive(120.0, [(60.0, 120.0, 200.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 60.0)]
+    road = RoadFilter(FusionConfig(), FRAME)
+    back = []
+    for p in packets:
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and p.t >= 60.0 and e.gps is not None:
+                back.append((p.t, math.hypot(e.x_m - 200.0, e.y_m - _north_m(p.t)),
+                             e.gps.reason))
+    restart = next(i for i, (_, _, reason) in enumerate(back) if reason.startswith("re-acq"))
+    assert restart <= 3, back
+    assert all(err < 5.0 for _, err, _ in back[restart + 5:]), back

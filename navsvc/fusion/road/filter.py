@@ -896,7 +896,9 @@ class RoadFilter:
         every stop, and the fixes of the car driving off were refused as a leap away from
         the standing estimate."""
         s, cfg = self.state, self.config
-        if not math.isfinite(nis):
+        if not math.isfinite(nis) or math.hypot(*innovation) > cfg.gps_lost_beyond_m or \
+                self._refused_from_afar():
+            s.jump_since_t = None
             return False
         if s.jump_since_t is not None:
             moved = math.hypot(innovation[0] - s.jump_offset_m[0],
@@ -963,10 +965,15 @@ class RoadFilter:
         s.gated_fixes += 1
         if s.first_gated_t is None:
             s.first_gated_t, s.gated_offset_m = fix.t, (float(z[0] - h[0]), float(z[1] - h[1]))
-        if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s:
+        lost = self._refused_from_afar() and s.gated_fixes >= 3 and \
+            fix.t - s.first_gated_t >= cfg.gps_lost_after_s
+        if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s \
+                or lost:
             s.initialized = False  # heading and speed are not to be trusted either
             s.first_fix = (fix.t, east, north, self._sigma_m(fix))
-            s.gps = GpsUsage(False, 0.0, "re-acquiring: estimate far from GPS too long")
+            s.gps = GpsUsage(False, 0.0, "re-acquiring: " + (
+                "the fixes lie beyond any non-line-of-sight error" if lost
+                else "estimate far from GPS too long"))
             return
         weight = cfg.gps_huber_nis / nis
         # past the gate the error is not the small one the linearisation assumes: the pull
@@ -978,6 +985,17 @@ class RoadFilter:
             s.P[X_M, X_M] += R[0, 0] * dt_s
             s.P[Y_M, Y_M] += R[1, 1] * dt_s
         s.gps = GpsUsage(True, weight, "down-weighted: innovation too large", nis=nis)
+
+    def _refused_from_afar(self) -> bool:
+        """The run of refused fixes began farther from the estimate than any
+        non-line-of-sight error (``gps_lost_beyond_m``): the estimate is lost, not the
+        fixes. Such a run is no jump, and after ``gps_lost_after_s`` (3 fixes at least) the
+        filter starts over from GPS (dead reckoning on an accelerometer's speed ran 570 m
+        away through a minute without fixes, and the fixes that came back were refused for
+        30 s)."""
+        s = self.state
+        return s.gated_fixes > 0 and s.gated_offset_m is not None and \
+            math.hypot(*s.gated_offset_m) > self.config.gps_lost_beyond_m
 
     def _fuse_gps_velocity(self, v: GpsVelocityPacket) -> None:
         """A velocity-only GPS message (NMEA VTG): course and speed when moving."""
