@@ -1043,7 +1043,9 @@ class RoadFilter:
         distance threshold restarts the estimate from GPS when the estimate's own
         uncertainty covers it (it is lost, not the fix: after an outage), when the fixes jump
         back by about a jump a restart followed (a non-line-of-sight run), when the far
-        fixes run away from the estimate (``weighted_diverging_mps``), when they have been
+        fixes run away from the estimate (``weighted_diverging_mps``), when they have lain
+        farther from it than any non-line-of-sight error for ``gps_lost_after_s``
+        (``gps_lost_beyond_m``, as in ``ekf``), when they have been
         far since they came back after a gap (``weighted_reacquire_after_gap_s``), or after
         ``weighted_reacquire_after_s`` (``max_jump_s`` when the fixes leapt away from a close
         track: non-line-of-sight runs last 10-60 s, and a restart onto one is wrong; the
@@ -1128,6 +1130,12 @@ class RoadFilter:
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
                                "away from the estimate (it diverges)", heading_lost=True)
+        if s.gated_offset_m is not None and distance_m > cfg.gps_lost_beyond_m and \
+                math.hypot(*s.gated_offset_m) > cfg.gps_lost_beyond_m and \
+                fix.t - s.first_gated_t >= cfg.gps_lost_after_s:
+            s.first_gated_t = None
+            return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes lie "
+                               "beyond any non-line-of-sight error", heading_lost=True)
         if s.refused_after_gap and \
                 fix.t - s.first_gated_t >= cfg.weighted_reacquire_after_gap_s:
             s.first_gated_t = None
