@@ -112,6 +112,9 @@ TABLE: tuple[Parameter, ...] = (
     _p("fusion.track_settled_s", "fusion gating", 1.0, 30.0, "log"),
     _p("fusion.track_confirm_nis", "fusion gating", 0.5, 10.0, "log"),
     _p("fusion.max_jump_s", "fusion gating", 5.0, 120.0, "log"),
+    _p("fusion.heading_unknown_sigma_rad", "fusion gating", 0.05, 1.0, "log"),
+    _p("fusion.gps_lost_beyond_m", "fusion gating", 80.0, 500.0, "log"),
+    _p("fusion.gps_lost_after_s", "fusion gating", 0.5, 10.0, "log"),
     # the thesis's rule-based GPS fusion (gps_mode "rules")
     _p("fusion.rules.position_weight_per_s", "gps rules", 0.005, 0.5, "log",
        note="GPSPosWeight"),
