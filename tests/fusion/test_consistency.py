@@ -8,13 +8,23 @@ error must lie inside the reported 2.45-sigma circle (the 95 % point of chi-squa
 degrees of freedom) at 90 % of epochs or more, and the mean NEES per degree of freedom must
 stay below 2: a filter may be cautious, never sure of a position it does not have.
 
-Measured at the time of writing (6 drives x 180 s, Monaco, seeds 0-5; the test's own drives
-are shorter): gyro configurations 85-100 % inside (NEES 0.04-1.5: cautious), GPS alone
-81-100 % (NEES 0.2-2.5), steering + odometer 92-100 % (NEES 0.2-1.9), the strapdown INS
-93-100 % (NEES 0.04-1.4).
+Measured on the test's own drives (pooled; since the map-seen error scales the reported
+covariance down as well as up): gyro + odometer 96.5 % inside (NEES per dof 0.64),
+steering + odometer 93.1 % (0.95), gyro + accelerometer 98.6 % (0.54), two accelerometers
+99.3 % (0.48), GPS alone 99.0 % (0.51), the strapdown INS 100 % (0.33): inside the issue's
+90-98 % band for the first two, cautious for the rest.
+
+The heading likewise: at speed (3 m/s and more, where a heading means something) the true
+heading error lies inside 1.96 sigma (95 % of one degree of freedom) at 90 % of epochs or
+more, with a mean NEES below 2. Measured: every road-filter configuration 99-100 % inside
+(NEES 0.3-0.4); the strapdown INS 75 % (NEES 2.4): its heading is overconfident, a known
+failure (a gyro scale prior of 2 % instead of 0.3 % brought it to 84 % but made its
+outage drift worse on harsh drives, so it was not kept).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -69,3 +79,36 @@ def test_the_reported_position_sigma_is_never_overconfident(
         nees.append(mean_nees)
     assert float(np.mean(inside)) >= 0.90, (CIRCLE_SIGMAS, inside)
     assert float(np.mean(nees)) <= 2.0, nees
+
+
+HEADING_SIGMAS = 1.96  # the 95 % point of one degree of freedom
+HEADING_MIN_SPEED_MPS = 3.0
+
+
+@pytest.mark.parametrize("sensors", [
+    SensorConfig.GYRO_ODOMETER, SensorConfig.GYRO_ACCEL, SensorConfig.GYRO_TWO_ACCELS,
+    SensorConfig.GPS_ONLY, SensorConfig.STEERING_ODOMETER,
+    pytest.param(SensorConfig.STRAPDOWN, marks=pytest.mark.xfail(
+        strict=True, reason="the INS heading is overconfident (75 % inside 1.96 sigma)"))])
+def test_the_reported_heading_sigma_is_never_overconfident(
+        sensors: SensorConfig, sample_graph: RoadGraph,
+        drives: list[list[dict[str, object]]]) -> None:
+    normalised: list[float] = []
+    for drive in drives:
+        truth = sorted((r for r in drive if r["kind"] == "truth"), key=lambda r: r["t"])
+        t = np.array([r["t"] for r in truth])
+        heading = np.unwrap(np.radians([r["heading_deg"] for r in truth]))
+        speed = np.array([r["speed_mps"] for r in truth])
+        kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
+        session = VehicleSession(SessionConfig(FusionConfig(sensors=sensors)), sample_graph)
+        result = session.add_records([r for r in drive if r["kind"] in kinds])
+        for p in result.positions:
+            e = p.estimate
+            if e.heading_sigma_rad > 0.0 and np.interp(e.t, t, speed) >= HEADING_MIN_SPEED_MPS:
+                error = math.remainder(e.heading_rad - float(np.interp(e.t, t, heading)),
+                                       2.0 * math.pi)
+                normalised.append(error / e.heading_sigma_rad)
+    z = np.array(normalised)
+    assert len(z) > 100
+    assert float(np.mean(np.abs(z) <= HEADING_SIGMAS)) >= 0.90
+    assert float(np.mean(z ** 2)) <= 2.0
