@@ -25,6 +25,7 @@ outage drift worse on harsh drives, so it was not kept).
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -95,7 +96,8 @@ def test_the_reported_heading_sigma_is_never_overconfident(
         drives: list[list[dict[str, object]]]) -> None:
     normalised: list[float] = []
     for drive in drives:
-        truth = sorted((r for r in drive if r["kind"] == "truth"), key=lambda r: r["t"])
+        truth: list[dict[str, Any]] = sorted(
+            (r for r in drive if r["kind"] == "truth"), key=lambda r: cast(float, r["t"]))
         t = np.array([r["t"] for r in truth])
         heading = np.unwrap(np.radians([r["heading_deg"] for r in truth]))
         speed = np.array([r["speed_mps"] for r in truth])
