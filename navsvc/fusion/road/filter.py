@@ -681,11 +681,10 @@ class RoadFilter:
         self._widen_off_road(fix.t, roads_m)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
         sigma = white * math.sqrt(fixes_per_s)
-        course = self._gps_course(fix)
-        course_taken = course is not None and fix.speed_mps is not None and \
-            self._heading_unknown()
-        if course is not None and course_taken:
+        course, course_taken = self._gps_course(fix), False
+        if course is not None and fix.speed_mps is not None and self._heading_unknown():
             self._take_course(course, fix)
+            course_taken = True
         z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
         y = z - h
         nis = kalman.nis(s.P, H, R, y)
@@ -894,7 +893,8 @@ class RoadFilter:
         drift): fixes that run away from the estimate faster say the estimate is diverging,
         not the GPS. A track whose heading is unknown refuses no jump: GPS alone loses it at
         every stop, and the fixes of the car driving off were refused as a leap away from
-        the standing estimate."""
+        the standing estimate. Nor are fixes farther off than any non-line-of-sight error a
+        jump (:meth:`_refused_from_afar`)."""
         s, cfg = self.state, self.config
         if not math.isfinite(nis) or math.hypot(*innovation) > cfg.gps_lost_beyond_m or \
                 self._refused_from_afar():
