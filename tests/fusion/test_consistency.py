@@ -25,6 +25,7 @@ outage drift worse on harsh drives, so it was not kept).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, cast
 
 import numpy as np
@@ -34,6 +35,7 @@ from navsvc.fusion import FusionConfig, SensorConfig
 from navsvc.session import SessionConfig, VehicleSession
 from navsvc.sim.scorecard import CIRCLE_SIGMAS, consistency
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, SensorErrors, simulate_drive
+from navsvc.types import MatchedPosition
 from navsvc.wire.positions import position_json
 from roadgraph import RoadGraph
 
@@ -62,19 +64,35 @@ def drives(sample_graph: RoadGraph) -> list[list[dict[str, object]]]:
     return out
 
 
+Runs = Callable[[SensorConfig], list[list[MatchedPosition]]]
+
+
+@pytest.fixture(scope="module")
+def runs(sample_graph: RoadGraph, drives: list[list[dict[str, object]]]) -> Runs:
+    """Each drive's positions in a configuration, run once for both tests."""
+    done: dict[SensorConfig, list[list[MatchedPosition]]] = {}
+
+    def positions(sensors: SensorConfig) -> list[list[MatchedPosition]]:
+        if sensors not in done:
+            kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
+            done[sensors] = [
+                VehicleSession(SessionConfig(FusionConfig(sensors=sensors)), sample_graph)
+                .add_records([r for r in drive if r["kind"] in kinds]).positions
+                for drive in drives]
+        return done[sensors]
+    return positions
+
+
 @pytest.mark.parametrize("sensors", [
     SensorConfig.GYRO_ODOMETER, SensorConfig.GYRO_ACCEL, SensorConfig.GYRO_TWO_ACCELS,
     SensorConfig.GPS_ONLY, SensorConfig.STEERING_ODOMETER, SensorConfig.STRAPDOWN])
 def test_the_reported_position_sigma_is_never_overconfident(
         sensors: SensorConfig, sample_graph: RoadGraph,
-        drives: list[list[dict[str, object]]]) -> None:
+        drives: list[list[dict[str, object]]], runs: Runs) -> None:
     inside, nees = [], []
-    for drive in drives:
-        kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
-        session = VehicleSession(SessionConfig(FusionConfig(sensors=sensors)), sample_graph)
-        result = session.add_records([r for r in drive if r["kind"] in kinds])
+    for drive, positions in zip(drives, runs(sensors)):
         share, mean_nees = consistency(
-            drive, [position_json(p, sample_graph.frame) for p in result.positions])
+            drive, [position_json(p, sample_graph.frame) for p in positions])
         assert share is not None and mean_nees is not None
         inside.append(share)
         nees.append(mean_nees)
@@ -92,19 +110,15 @@ HEADING_MIN_SPEED_MPS = 3.0
     pytest.param(SensorConfig.STRAPDOWN, marks=pytest.mark.xfail(
         strict=True, reason="the INS heading is overconfident (75 % inside 1.96 sigma)"))])
 def test_the_reported_heading_sigma_is_never_overconfident(
-        sensors: SensorConfig, sample_graph: RoadGraph,
-        drives: list[list[dict[str, object]]]) -> None:
+        sensors: SensorConfig, drives: list[list[dict[str, object]]], runs: Runs) -> None:
     normalised: list[float] = []
-    for drive in drives:
+    for drive, positions in zip(drives, runs(sensors)):
         truth: list[dict[str, Any]] = sorted(
             (r for r in drive if r["kind"] == "truth"), key=lambda r: cast(float, r["t"]))
         t = np.array([r["t"] for r in truth])
         heading = np.unwrap(np.radians([r["heading_deg"] for r in truth]))
         speed = np.array([r["speed_mps"] for r in truth])
-        kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
-        session = VehicleSession(SessionConfig(FusionConfig(sensors=sensors)), sample_graph)
-        result = session.add_records([r for r in drive if r["kind"] in kinds])
-        for p in result.positions:
+        for p in positions:
             e = p.estimate
             if e.heading_sigma_rad > 0.0 and np.interp(e.t, t, speed) >= HEADING_MIN_SPEED_MPS:
                 error = math.remainder(e.heading_rad - float(np.interp(e.t, t, heading)),
