@@ -896,8 +896,8 @@ class RoadFilter:
         the standing estimate. Nor are fixes farther off than any non-line-of-sight error a
         jump (:meth:`_refused_from_afar`)."""
         s, cfg = self.state, self.config
-        if not math.isfinite(nis) or math.hypot(*innovation) > cfg.gps_lost_beyond_m or \
-                self._refused_from_afar():
+        if not math.isfinite(nis) or self._beyond_any_nlos((innovation[0], innovation[1])) \
+                or self._refused_from_afar():
             s.jump_since_t = None
             return False
         if s.jump_since_t is not None:
@@ -994,8 +994,12 @@ class RoadFilter:
         away through a minute without fixes, and the fixes that came back were refused for
         30 s)."""
         s = self.state
-        return s.gated_fixes > 0 and s.gated_offset_m is not None and \
-            math.hypot(*s.gated_offset_m) > self.config.gps_lost_beyond_m
+        return s.gated_fixes > 0 and self._beyond_any_nlos(s.gated_offset_m)
+
+    def _beyond_any_nlos(self, offset_m: tuple[float, float] | None) -> bool:
+        """An offset of the fixes from the estimate larger than any non-line-of-sight
+        error (``gps_lost_beyond_m``)."""
+        return offset_m is not None and math.hypot(*offset_m) > self.config.gps_lost_beyond_m
 
     def _fuse_gps_velocity(self, v: GpsVelocityPacket) -> None:
         """A velocity-only GPS message (NMEA VTG): course and speed when moving."""
@@ -1130,9 +1134,8 @@ class RoadFilter:
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
                                "away from the estimate (it diverges)", heading_lost=True)
-        if s.gated_offset_m is not None and distance_m > cfg.gps_lost_beyond_m and \
-                math.hypot(*s.gated_offset_m) > cfg.gps_lost_beyond_m and \
-                fix.t - s.first_gated_t >= cfg.gps_lost_after_s:
+        if distance_m > cfg.gps_lost_beyond_m and self._beyond_any_nlos(s.gated_offset_m) \
+                and fix.t - s.first_gated_t >= cfg.gps_lost_after_s:
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes lie "
                                "beyond any non-line-of-sight error", heading_lost=True)
