@@ -56,7 +56,7 @@ MAPS: dict[str, tuple[Path, float]] = {  # name: (source, consolidate_m)
     "gh-issue-13": (DATA / "graphhopper" / "map-issue13.osm.gz", 8.0),
     "stockholm": (DATA / "fmm" / "stockholm.graphml", 0.0),  # FMM's network, taken as it is
 }
-TUNE_SEEDS = tuple(range(1, 201))  # for trying changes
+TUNE_SEEDS = tuple(range(1, 1001))  # for trying changes
 REPORT_SEEDS = tuple(range(100_001, 100_201))  # for the figures quoted; never for choosing
 URBANNAV_EVERY = 3  # seeds divisible by this replay the UrbanNav error
 OUTAGE_LENGTH_S = 60.0

@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
+
 from navsvc.types import GpsFix, GpsFixType
 
 # A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
@@ -86,3 +88,49 @@ class MapSeenError:
         if self.learnt_s < memory_s / 2.0:
             return 0.0
         return max(min(self.mean_sq_m2, max_sigma_m ** 2) - sigma_m ** 2, 0.0)
+
+
+@dataclass(frozen=True)
+class TrackFit:
+    """A heading fitted to fixes along a straight line an odometer drove."""
+
+    heading_rad: float  # clockwise from north
+    variance_rad2: float
+    agrees: bool  # the fixes lie where the odometer's distances put them, within their error
+
+
+def fit_track(fixes: tuple[tuple[float, float, float, float], ...],
+              sigma_m: float) -> TrackFit:
+    """Weighted least-squares fit of fixes ``(t, east, north, distance driven)`` to
+    ``p0 + d u``: a start, and the unit direction ``u`` the car drove along (distances
+    known, from the odometer). ``u`` is the normalised sum of ``w (d - mean d)(p - mean
+    p)``; its variance ``sigma^2 / sum w (d - mean d)^2``. A fix weighs the mean of the
+    times to its neighbours, each a second at most: fixes faster than one a second are not
+    independent (their errors are one slowly changing error), and a cluster of them before
+    a gap counts as about one fix. The fixes agree with the line when each lies within
+    ``3 sigma`` (plus a tenth of its distance: the odometer's scale) of where the fit puts
+    it, and the fitted distance per odometer metre is one within 3 of its sigmas and a
+    tenth. Fixes that do not yet span any distance say nothing: an infinite variance."""
+    unknown = TrackFit(0.0, math.inf, True)
+    if len(fixes) < 2:
+        return unknown
+    t = np.array([f[0] for f in fixes])
+    p = np.array([(f[1], f[2]) for f in fixes])
+    d = np.array([f[3] for f in fixes])
+    gaps = np.minimum(np.diff(t), 1.0)
+    w = (np.append(gaps[:1], gaps) + np.append(gaps, gaps[-1:])) / 2.0
+    e = d - (w @ d) / w.sum()
+    q = p - (w @ p) / w.sum()
+    spread_m2 = float(w @ e ** 2)
+    if spread_m2 <= 0.0:
+        return unknown
+    g = (w * e) @ q
+    slope = math.hypot(float(g[0]), float(g[1])) / spread_m2  # fitted metres per odometer one
+    if slope == 0.0:
+        return unknown
+    u = g / (slope * spread_m2)
+    misfit_m = np.hypot(*(q - np.outer(e, u)).T)
+    variance = sigma_m ** 2 / spread_m2
+    agrees = bool(np.all(misfit_m <= 3.0 * sigma_m + 0.1 * np.abs(e))) and \
+        abs(slope - 1.0) <= 3.0 * math.sqrt(variance) + 0.1
+    return TrackFit(math.atan2(float(u[0]), float(u[1])) % (2.0 * math.pi), variance, agrees)

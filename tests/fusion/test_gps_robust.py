@@ -439,3 +439,69 @@ def test_weighted_modes_restart_from_fixes_beyond_any_non_line_of_sight_error() 
         assert restarts and 62.0 <= restarts[0] <= 63.0, (mode, restarts)
         err = math.hypot(road.state.x[0] - 200.0, road.state.x[1] - _north_m(100.0))
         assert err < 5.0, (mode, err)
+
+
+# east error (m) of 2 Hz fixes from t = 6 s: a replayed urban-canyon start-up (UrbanNav's
+# error on Stockholm 465 of the tune split), leaping 28 m east and back at the standstill,
+# then sweeping 40 m east in 3 s as the car pulls away north
+URBAN_START_ERRORS_EAST_M = (-29.1, -1.2, 26.8, -1.0, -28.8, -27.4, -26.0, -14.8, -3.5, -1.5,
+                             0.4, 6.1, 11.9, 11.9)
+
+
+def test_start_up_heading_is_not_taken_from_fixes_sweeping_off_the_driven_line() -> None:
+    """The car stands for 8.2 s, then pulls away north at 1.5 m/s^2; 2 Hz fixes of 3.5 m
+    accuracy carry the error above. Two ends of the sweep, 36 m apart after 8 m driven,
+    gave a start-up heading 77 degrees off with a sigma of 13 degrees; the fixes in between
+    do not lie along the line the odometer drove, so the filter waits for ones that do."""
+    still_s, accel_mps2 = 8.2, 1.5
+
+    def north_m(t: float) -> float:
+        moving = max(t - still_s, 0.0)
+        return 0.5 * accel_mps2 * min(moving, 5.0) ** 2 + 7.5 * max(moving - 5.0, 0.0)
+
+    def speed_mps(t: float) -> float:
+        return accel_mps2 * min(max(t - still_s, 0.0), 5.0)
+
+    rng = np.random.default_rng(3)
+    packets: list[Packet] = []
+    for k in range(3000):
+        t = k / 100.0
+        packets.append(ImuSample(t, yaw_rate_rps=rng.normal(0.0, 0.002)))
+        if k % 10 == 0:
+            packets.append(OdometerSample(t, speed_mps=speed_mps(t)))
+        if k % 50 == 0:
+            i = round((t - 6.0) * 2.0)
+            east = URBAN_START_ERRORS_EAST_M[i] if 0 <= i < len(URBAN_START_ERRORS_EAST_M) \
+                else 0.0
+            noise_east, noise_north = rng.normal(0.0, 1.0, 2)
+            lon, lat = FRAME.to_wgs84(east + noise_east, north_m(t) + noise_north)
+            packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=3.5))
+    road = RoadFilter(FusionConfig(), FRAME)
+    start = None
+    for p in packets:
+        for e in road.apply(p):
+            if start is None and e.initialized:
+                start = e
+    assert start is not None
+    assert abs(math.remainder(start.heading_rad, 2.0 * math.pi)) < 3.0 * start.heading_sigma_rad
+    estimate = road.estimate()
+    assert estimate is not None and math.hypot(estimate.x_m, estimate.y_m - north_m(30.0)) < 10.0
+
+
+def test_re_acquiring_counts_the_heading_baseline_from_the_restarting_fix() -> None:
+    """Re-acquiring starts a new start-up heading at the fix that restarts the filter: the
+    odometer's distance and the gyro's turn are counted from there (they had kept the counts
+    of the first start-up, and a fix 24 m off passed as agreeing with the odometer)."""
+    packets = [p for p in _drive(120.0, [(60.0, 120.0, 200.0)])
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 60.0)]
+    road = RoadFilter(FusionConfig(), FRAME)
+    for p in packets:
+        road.apply(p)
+        if isinstance(p, GpsFix) and road.state.gps is not None and \
+                road.state.gps.reason.startswith("re-acquiring"):
+            s = road.state
+            assert s.first_fix is not None and s.first_fix[0] == p.t
+            assert s.travelled_m == 0.0 and s.turned_rad == 0.0
+            assert [f[0] for f in s.baseline_fixes] == [p.t]
+            return
+    raise AssertionError("the filter never re-acquired")

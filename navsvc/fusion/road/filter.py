@@ -24,7 +24,14 @@ import numpy as np
 from navsvc.fusion import kalman, odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
-from navsvc.fusion.gnss import MapSeenError, RoadDistance, gps_problem, gps_sigma_m
+from navsvc.fusion.gnss import (
+    MapSeenError,
+    RoadDistance,
+    TrackFit,
+    fit_track,
+    gps_problem,
+    gps_sigma_m,
+)
 from navsvc.fusion.kalman import Linearised, Measurement
 from navsvc.fusion.profiles import GpsMode
 from navsvc.fusion.road import batch, motion
@@ -94,6 +101,8 @@ class RoadState:
     # heading
     turned_rad: float = 0.0  # the gyro's turn since first_fix
     travelled_m: float = 0.0  # the odometer's distance since first_fix
+    baseline_fixes: tuple[tuple[float, float, float, float], ...] = ()  # the fixes since
+    # first_fix, itself the first: (t, east, north, the odometer's distance since first_fix)
     odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
     last_odo: odometer.Window | None = None  # odometer speed window start
     last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
@@ -409,7 +418,7 @@ class RoadFilter:
         else:  # the next standstill is somewhere else
             s.still_fixes, s.still_before_jump = (0, 0.0, 0.0, 0.0), None
         if self._off_the_fixes_line(sigma):
-            s.first_fix, s.turned_rad, s.travelled_m = (fix.t, east, north, sigma), 0.0, 0.0
+            self._start_heading_baseline(fix.t, east, north, sigma)
             s.gps = GpsUsage(False, 0.0, "initialising: the fix leapt off the fixes' line")
             return
         heading = self._gps_course(fix)
@@ -418,21 +427,22 @@ class RoadFilter:
         if heading is None and first is not None and fix.t > first[0]:
             t0, e0, n0, sigma0 = first
             moved, spread = math.hypot(east - e0, north - n0), math.hypot(sigma, sigma0)
+            s.baseline_fixes = (*s.baseline_fixes, (fix.t, east, north, s.travelled_m))
+            fit = self._odometer_track_fit(sigma)
             if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing() or \
                     fix.t - t0 > cfg.initial_heading_max_baseline_s or \
                     abs(s.turned_rad) > cfg.initial_heading_max_turn_rad or \
-                    not self._odometer_agrees(moved, spread):
+                    (fit is not None and not fit.agrees):
                 first = None  # an outlier, a car standing still, fixes too far apart in
-                # time or turn for the line between them to be the heading, or a line the
-                # odometer did not drive (a jump of the fixes between them): start over
-            elif moved >= max(cfg.initial_heading_min_move_m,
-                              cfg.initial_heading_min_move_sigmas * spread):
-                heading = bearing_rad(e0, n0, east, north), (spread / moved) ** 2
-                if speed is None:
+                # time or turn for the line between them to be the heading, or fixes off
+                # the line the odometer drove (a jump of the fixes among them): start over
+            else:
+                heading = self._baseline_heading(fit, (e0, n0, east, north), spread)
+                if heading is not None and speed is None:
                     speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
             if first is None:
-                s.first_fix, s.turned_rad, s.travelled_m = (fix.t, east, north, sigma), 0.0, 0.0
+                self._start_heading_baseline(fix.t, east, north, sigma)
             s.gps = GpsUsage(False, 0.0, "initialising: waiting for a heading")
             return
         if self._leapt(step, sigma):
@@ -449,6 +459,16 @@ class RoadFilter:
         s.still_fixes, s.still_before_jump = (0, 0.0, 0.0, 0.0), None
         s.start_up_fixes = ()
         s.gps = GpsUsage(True, 1.0, "initialised from GPS")
+
+    def _start_heading_baseline(self, t: float, east: float, north: float,
+                                sigma_m: float) -> None:
+        """This fix begins the baseline of a start-up heading: the turn and the distance
+        driven are counted from it. Re-acquiring kept the counts of the first start-up, and
+        a line between two fixes 24 m apart was taken as the heading (42 degrees off) beside
+        an odometer that had long stopped counting (Stockholm 465 of the tune split)."""
+        s = self.state
+        s.first_fix, s.turned_rad, s.travelled_m = (t, east, north, sigma_m), 0.0, 0.0
+        s.baseline_fixes = ((t, east, north, 0.0),)
 
     def _step_from_last_start_up_fix(self, t: float, east: float, north: float
                                      ) -> tuple[float, float, float] | None:
@@ -555,14 +575,33 @@ class RoadFilter:
         n += 1
         s.still_fixes = (n, mean_e + (east - mean_e) / n, mean_n + (north - mean_n) / n, t)
 
-    def _odometer_agrees(self, moved_m: float, spread_m: float) -> bool:
-        """Two fixes ``moved_m`` apart are as far apart as the odometer drove (within their
-        error and a tenth); true without an odometer. A start-up heading from fixes of which
-        one had jumped (non-line-of-sight) was 118 degrees off, and the drive ran 400 m away."""
-        if OdometerSpeed not in self.profile.measurements or self.state.odo_speed_mps is None:
-            return True
-        travelled = self.state.travelled_m
-        return abs(moved_m - travelled) <= 3.0 * spread_m + 0.1 * travelled
+    def _baseline_heading(self, fit: TrackFit | None, ends: tuple[float, float, float, float],
+                          spread_m: float) -> tuple[float, float] | None:
+        """The start-up heading and its variance once the baseline is
+        ``initial_heading_min_move_m`` and ``initial_heading_min_move_sigmas`` of the fixes'
+        spread long: with an odometer, the fit, once the odometer drove that far (the fixes'
+        own distance is no baseline: a fix 22 m off after a few metres driven made one, and
+        the heading started with a sigma of 600 degrees); without one, the bearing between
+        the ends, once they lie that far apart."""
+        cfg = self.config
+        min_move_m = max(cfg.initial_heading_min_move_m,
+                         cfg.initial_heading_min_move_sigmas * spread_m)
+        if fit is not None:
+            return (fit.heading_rad, fit.variance_rad2) \
+                if self.state.travelled_m >= min_move_m else None
+        moved = math.hypot(ends[2] - ends[0], ends[3] - ends[1])
+        return (bearing_rad(*ends), (spread_m / moved) ** 2) if moved >= min_move_m else None
+
+    def _odometer_track_fit(self, sigma_m: float) -> TrackFit | None:
+        """With an odometer, the start-up fixes fitted to the line it drove
+        (:func:`fit_track`); None without one. Two fixes of which one had jumped
+        (non-line-of-sight) gave a heading 118 degrees off, and the drive ran 400 m away; a
+        test of the two ends alone let a run of fixes leaping 28 m east and back at 2 Hz
+        start the heading 77 degrees off (Stockholm 465 of the tune split)."""
+        s = self.state
+        if OdometerSpeed not in self.profile.measurements or s.odo_speed_mps is None:
+            return None
+        return fit_track(s.baseline_fixes, sigma_m)
 
     def _standing(self) -> bool:
         """The odometer says the car stands still (GPS fixes then only wander)."""
@@ -970,7 +1009,7 @@ class RoadFilter:
         if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s \
                 or lost:
             s.initialized = False  # heading and speed are not to be trusted either
-            s.first_fix = (fix.t, east, north, self._sigma_m(fix))
+            self._start_heading_baseline(fix.t, east, north, self._sigma_m(fix))
             s.gps = GpsUsage(False, 0.0, "re-acquiring: " + (
                 "the fixes lie beyond any non-line-of-sight error" if lost
                 else "estimate far from GPS too long"))
