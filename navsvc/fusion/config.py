@@ -83,8 +83,9 @@ class FusionConfig:
     stationary_after_samples: int = 20  # thesis: odometer zero for 20+ samples
     still_max_turn_rate_rps: float = 0.05  # ... unless the vehicle turns faster than this
     odometer_window_s: float = 0.25  # speed from distance over at least this long (ticks)
-    initial_heading_min_move_m: float = 15.0  # heading from two fixes at least this far apart
-    initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas apart
+    initial_heading_min_move_m: float = 15.0  # heading from fixes over a baseline this long
+    # (the odometer's distance; without one, the ends' distance)
+    initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas long
     initial_heading_max_baseline_s: float = 10.0  # ... and at most this long apart
     initial_heading_max_turn_rad: float = math.radians(10.0)  # ... with less turn between
     weighted_reacquire_after_s: float = 30.0  # rules, fuzzy: fixes far from the estimate

@@ -401,8 +401,9 @@ class RoadFilter:
 
     def _try_initialize(self, fix: GpsFix) -> None:
         """Start once the heading is known: from the GPS course when fast enough for it to
-        mean something, else from the bearing between two fixes a long way apart against
-        their error. Each starting value gets the variance of how it was obtained."""
+        mean something, else from the fixes over a baseline long against their error (fitted
+        to the line the odometer drove, or without one the bearing between its ends). Each
+        starting value gets the variance of how it was obtained."""
         s, cfg = self.state, self.config
         bad = self._problem(fix)
         s.t = fix.t if s.t is None else max(s.t, fix.t)
