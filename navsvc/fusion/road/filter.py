@@ -429,18 +429,20 @@ class RoadFilter:
             t0, e0, n0, sigma0 = first
             moved, spread = math.hypot(east - e0, north - n0), math.hypot(sigma, sigma0)
             s.baseline_fixes = (*s.baseline_fixes, (fix.t, east, north, s.travelled_m))
-            fit = self._odometer_track_fit(sigma)
             if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing() or \
                     fix.t - t0 > cfg.initial_heading_max_baseline_s or \
-                    abs(s.turned_rad) > cfg.initial_heading_max_turn_rad or \
-                    (fit is not None and not fit.agrees):
-                first = None  # an outlier, a car standing still, fixes too far apart in
-                # time or turn for the line between them to be the heading, or fixes off
-                # the line the odometer drove (a jump of the fixes among them): start over
+                    abs(s.turned_rad) > cfg.initial_heading_max_turn_rad:
+                first = None  # an outlier, a car standing still, or fixes too far apart in
+                # time or turn for the line between them to be the heading: start over
             else:
-                heading = self._baseline_heading(fit, (e0, n0, east, north), spread)
-                if heading is not None and speed is None:
-                    speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
+                fit = self._odometer_track_fit(sigma)
+                if fit is not None and not fit.agrees:
+                    first = None  # fixes off the line the odometer drove (a jump of the
+                    # fixes among them): start over
+                else:
+                    heading = self._baseline_heading(fit, (e0, n0, east, north), moved, spread)
+                    if heading is not None and speed is None:
+                        speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
             if first is None:
                 self._start_heading_baseline(fix.t, east, north, sigma)
@@ -464,9 +466,9 @@ class RoadFilter:
     def _start_heading_baseline(self, t: float, east: float, north: float,
                                 sigma_m: float) -> None:
         """This fix begins the baseline of a start-up heading: the turn and the distance
-        driven are counted from it. Re-acquiring kept the counts of the first start-up, and
-        a line between two fixes 24 m apart was taken as the heading (42 degrees off) beside
-        an odometer that had long stopped counting (Stockholm 465 of the tune split)."""
+        driven are counted from it. Re-acquiring had kept the counts of the first start-up,
+        frozen since, so the odometer test weighed the fixes against a distance long
+        stale."""
         s = self.state
         s.first_fix, s.turned_rad, s.travelled_m = (t, east, north, sigma_m), 0.0, 0.0
         s.baseline_fixes = ((t, east, north, 0.0),)
@@ -489,8 +491,7 @@ class RoadFilter:
         starting on it with its own sigma had the next fixes refused as too far off (Andorra
         162 of the tune split started 22 m off and took 13 s to come back: 1.27 -> 0.31x
         raw GPS). Without an odometer nothing says how far the car drove."""
-        if step is None or OdometerSpeed not in self.profile.measurements or \
-                self.state.odo_speed_mps is None:
+        if step is None or not self._odometer_counts():
             return False
         step_e, step_n, driven_m = step
         return math.hypot(step_e, step_n) - driven_m > 3.0 * math.sqrt(2.0) * sigma_m
@@ -577,21 +578,21 @@ class RoadFilter:
         s.still_fixes = (n, mean_e + (east - mean_e) / n, mean_n + (north - mean_n) / n, t)
 
     def _baseline_heading(self, fit: TrackFit | None, ends: tuple[float, float, float, float],
-                          spread_m: float) -> tuple[float, float] | None:
+                          moved_m: float, spread_m: float) -> tuple[float, float] | None:
         """The start-up heading and its variance once the baseline is
         ``initial_heading_min_move_m`` and ``initial_heading_min_move_sigmas`` of the fixes'
         spread long: with an odometer, the fit, once the odometer drove that far (the fixes'
         own distance is no baseline: a fix 22 m off after a few metres driven made one, and
         the heading started with a sigma of 600 degrees); without one, the bearing between
-        the ends, once they lie that far apart."""
+        the ends (``moved_m`` apart), once they lie that far apart."""
         cfg = self.config
         min_move_m = max(cfg.initial_heading_min_move_m,
                          cfg.initial_heading_min_move_sigmas * spread_m)
         if fit is not None:
             return (fit.heading_rad, fit.variance_rad2) \
                 if self.state.travelled_m >= min_move_m else None
-        moved = math.hypot(ends[2] - ends[0], ends[3] - ends[1])
-        return (bearing_rad(*ends), (spread_m / moved) ** 2) if moved >= min_move_m else None
+        return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= min_move_m \
+            else None
 
     def _odometer_track_fit(self, sigma_m: float) -> TrackFit | None:
         """With an odometer, the start-up fixes fitted to the line it drove
@@ -599,10 +600,14 @@ class RoadFilter:
         (non-line-of-sight) gave a heading 118 degrees off, and the drive ran 400 m away; a
         test of the two ends alone let a run of fixes leaping 28 m east and back at 2 Hz
         start the heading 77 degrees off (Stockholm 465 of the tune split)."""
-        s = self.state
-        if OdometerSpeed not in self.profile.measurements or s.odo_speed_mps is None:
+        if not self._odometer_counts():
             return None
-        return fit_track(s.baseline_fixes, sigma_m)
+        return fit_track(self.state.baseline_fixes, sigma_m)
+
+    def _odometer_counts(self) -> bool:
+        """The configuration has an odometer, and it has given a speed."""
+        return OdometerSpeed in self.profile.measurements and \
+            self.state.odo_speed_mps is not None
 
     def _standing(self) -> bool:
         """The odometer says the car stands still (GPS fixes then only wander)."""
