@@ -88,10 +88,6 @@ class FusionConfig:
     initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas long
     initial_heading_max_baseline_s: float = 10.0  # ... and at most this long apart
     initial_heading_max_turn_rad: float = math.radians(10.0)  # ... with less turn between
-    # (without an odometer, whose path is fitted at a constant speed) ...
-    initial_heading_max_odometer_turn_rad: float = math.radians(30.0)  # ... with an odometer
-    # (its path is fitted through the turn; across a bend and a gap of the fixes, two
-    # clusters of them 90 degrees apart gave a heading 84 degrees off)
     weighted_reacquire_after_s: float = 30.0  # rules, fuzzy: fixes far from the estimate
     # this long restart it from GPS (a restart onto a non-line-of-sight run is undone when
     # the fixes jump back)

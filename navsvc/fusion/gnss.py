@@ -92,54 +92,45 @@ class MapSeenError:
 
 @dataclass(frozen=True)
 class TrackFit:
-    """A heading fitted to fixes along the path an odometer (and gyro or steering) drove."""
+    """A heading fitted to fixes along a straight line an odometer drove."""
 
-    heading_rad: float  # clockwise from north, at the path's start
+    heading_rad: float  # clockwise from north
     variance_rad2: float
-    agrees: bool  # the fixes lie where dead reckoning puts them, within their error
+    agrees: bool  # the fixes lie where the odometer's distances put them, within their error
 
 
-def fit_track(fixes: tuple[tuple[float, float, float, float, float], ...],
-              sigma_m: float, scale_known: bool = True) -> TrackFit:
-    """Weighted least-squares fit of fixes ``(t, east, north, right, ahead)`` to ``p0 + R
-    d``: a start, and the rotation ``R`` by the heading at the start, of where dead
-    reckoning put the car (``d``: metres right of and ahead of the start, along its
-    heading; a straight drive is ``(0, distance)``). The heading is that of the weighted
-    sum of the cross and dot products of the centred ``d`` and fixes; its variance
-    ``sigma^2 / sum w |d - mean d|^2``. A fix weighs the mean of the times to its
-    neighbours, each a second at most: fixes faster than one a second are not independent
-    (their errors are one slowly changing error), and a cluster of them before a gap counts
-    as about one fix. The fixes agree with the path when each lies within ``3 sigma`` (plus
-    a tenth of its distance from the centre: the odometer's scale and the turn's error) of
-    where the fit puts it, and the fitted metres per dead-reckoned one are one within 3 of
-    its sigmas and a tenth. Without an odometer, ``d`` is the path at a unit speed
-    (``scale_known`` false): the fitted scale is then the mean speed, and only the shape
-    is tested. Fixes that do not yet span any distance say nothing: an infinite
-    variance."""
+def fit_track(fixes: tuple[tuple[float, float, float, float], ...],
+              sigma_m: float) -> TrackFit:
+    """Weighted least-squares fit of fixes ``(t, east, north, distance driven)`` to
+    ``p0 + d u``: a start, and the unit direction ``u`` the car drove along (distances
+    known, from the odometer). ``u`` is the normalised sum of ``w (d - mean d)(p - mean
+    p)``; its variance ``sigma^2 / sum w (d - mean d)^2``. A fix weighs the mean of the
+    times to its neighbours, each a second at most: fixes faster than one a second are not
+    independent (their errors are one slowly changing error), and a cluster of them before
+    a gap counts as about one fix. The fixes agree with the line when each lies within
+    ``3 sigma`` (plus a tenth of its distance: the odometer's scale) of where the fit puts
+    it, and the fitted distance per odometer metre is one within 3 of its sigmas and a
+    tenth. Fixes that do not yet span any distance say nothing: an infinite variance."""
     unknown = TrackFit(0.0, math.inf, True)
     if len(fixes) < 2:
         return unknown
     t = np.array([f[0] for f in fixes])
     p = np.array([(f[1], f[2]) for f in fixes])
-    d = np.array([(f[3], f[4]) for f in fixes])
+    d = np.array([f[3] for f in fixes])
     gaps = np.minimum(np.diff(t), 1.0)
     w = (np.append(gaps[:1], gaps) + np.append(gaps, gaps[-1:])) / 2.0
     e = d - (w @ d) / w.sum()
     q = p - (w @ p) / w.sum()
-    spread_m2 = float(w @ (e ** 2).sum(axis=1))
+    spread_m2 = float(w @ e ** 2)
     if spread_m2 <= 0.0:
         return unknown
-    dot = float(w @ (q[:, 0] * e[:, 0] + q[:, 1] * e[:, 1]))
-    cross = float(w @ (q[:, 0] * e[:, 1] - q[:, 1] * e[:, 0]))
-    scale = math.hypot(dot, cross) / spread_m2  # fitted metres per dead-reckoned one
-    if scale == 0.0:
+    g = (w * e) @ q
+    slope = math.hypot(float(g[0]), float(g[1])) / spread_m2  # fitted metres per odometer one
+    if slope == 0.0:
         return unknown
-    heading = math.atan2(cross, dot)
-    c, s = math.cos(heading), math.sin(heading)
-    k = 1.0 if scale_known else scale  # metres per unit of d
-    placed = k * np.column_stack([e[:, 0] * c + e[:, 1] * s, e[:, 1] * c - e[:, 0] * s])
-    misfit_m = np.hypot(*(q - placed).T)
-    variance = sigma_m ** 2 / (k * k * spread_m2)
-    agrees = bool(np.all(misfit_m <= 3.0 * sigma_m + 0.1 * k * np.hypot(*e.T))) and \
-        (not scale_known or abs(scale - 1.0) <= 3.0 * math.sqrt(variance) + 0.1)
-    return TrackFit(heading % (2.0 * math.pi), variance, agrees)
+    u = g / (slope * spread_m2)
+    misfit_m = np.hypot(*(q - np.outer(e, u)).T)
+    variance = sigma_m ** 2 / spread_m2
+    agrees = bool(np.all(misfit_m <= 3.0 * sigma_m + 0.1 * np.abs(e))) and \
+        abs(slope - 1.0) <= 3.0 * math.sqrt(variance) + 0.1
+    return TrackFit(math.atan2(float(u[0]), float(u[1])) % (2.0 * math.pi), variance, agrees)

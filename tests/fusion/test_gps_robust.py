@@ -500,8 +500,9 @@ def test_re_acquiring_counts_the_heading_baseline_from_the_restarting_fix() -> N
         if isinstance(p, GpsFix) and road.state.gps is not None and \
                 road.state.gps.reason.startswith("re-acquiring"):
             s = road.state
+            assert s.first_fix is not None and s.first_fix[0] == p.t
             assert s.travelled_m == 0.0 and s.turned_rad == 0.0
-            assert [f.t for f in s.baseline] == [p.t]
+            assert [f[0] for f in s.baseline_fixes] == [p.t]
             return
     raise AssertionError("the filter never re-acquired")
 
@@ -509,9 +510,9 @@ def test_re_acquiring_counts_the_heading_baseline_from_the_restarting_fix() -> N
 def test_steering_start_up_counts_the_turn_of_a_bend() -> None:
     """Steering and odometer, no gyro: the car pulls away into a left bend (radius 40 m at
     8 m/s, 11 degrees a second) and leaves it heading west. The bearing of fixes over a
-    baseline through the bend is no heading (a steering drive started 49 degrees off): the
-    fixes are fitted to the path the steering and odometer drove, and the filter starts
-    within 3 of its sigmas of the true heading."""
+    baseline through the bend is no heading (a steering drive started 49 degrees off); the
+    turn the steering and odometer give is counted, so start-up waits for a straight
+    baseline, and starts within 3 of its sigmas of the true heading."""
     still_s, speed, radius_m = 5.0, 8.0, 40.0
     arc_m = radius_m * math.pi / 2.0
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
 
 import numpy as np
 
@@ -82,27 +81,11 @@ from navsvc.types import (
 from roadgraph.geometry import LocalFrame, bearing_rad
 
 MAX_PLAUSIBLE_SPEED_MPS = 70.0
-TOWN_ACCEL_MPS2 = 1.0  # how fast a car's speed typically changes in town
 MAX_PLAUSIBLE_ACCEL_MPS2 = 6.0  # a car's horizontal acceleration (braking hard: 8)
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
-TURN_ERROR_SHARE = 0.1  # a start-up turn counted by gyro or steering is this far off at most
 TURN_RATE_ERRORS = (GYRO_BIAS, GYRO_SCALE)  # what a fix past the gate leaves alone (ekf)
-
-
-class BaselineFix(NamedTuple):
-    """A fix of a start-up heading's baseline, with dead reckoning's counts at its time
-    (:class:`RoadState`: since the baseline began)."""
-
-    t: float
-    east_m: float
-    north_m: float
-    sigma_m: float
-    right_m: float
-    ahead_m: float
-    travelled_m: float
-    turned_rad: float
 
 
 @dataclass
@@ -114,14 +97,12 @@ class RoadState:
     t: float | None = None  # time of x
     initialized: bool = False
     calibrating: bool = False  # the sensor biases and scales are states (since the start)
-    baseline: tuple[BaselineFix, ...] = ()  # the fixes awaiting a start-up heading (the
-    # latest ``initial_heading_max_baseline_s``), and dead reckoning's counts since the
-    # baseline began (at its first fix, or one since dropped):
-    turned_rad: float = 0.0  # the turn (gyro, or steering and odometer), counterclockwise
-    turn_sample_t: float | None = None  # the latest sample counted in it
-    travelled_m: float = 0.0  # the odometer's distance
-    driven_m: tuple[float, float] = (0.0, 0.0)  # where dead reckoning (odometer, turn) put
-    # the car: metres right of and ahead of the start, along its heading then
+    first_fix: tuple[float, float, float, float] | None = None  # (t, x, y, sigma) awaiting a
+    # heading
+    turned_rad: float = 0.0  # the turn since first_fix (gyro, or steering and odometer)
+    travelled_m: float = 0.0  # the odometer's distance since first_fix
+    baseline_fixes: tuple[tuple[float, float, float, float], ...] = ()  # the fixes since
+    # first_fix, itself the first: (t, east, north, the odometer's distance since first_fix)
     odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
     last_odo: odometer.Window | None = None  # odometer speed window start
     last_odo_distance_m: float | None = None  # previous raw reading (stationary detection)
@@ -385,8 +366,8 @@ class RoadFilter:
         is then known when the filter starts (it can be a degree a second). While moving,
         add up the turn since the first fix of a start-up heading: the gyro's, or with
         steering the bicycle model's at the odometer's speed (uncounted, a steering drive
-        started 49 degrees off from a baseline driven through a bend: Monaco 26 of the tune
-        split)."""
+        started 49 degrees off from a baseline driven through a bend, and ran 560 m away:
+        Monaco 26 of the tune split)."""
         s = self.state
         if isinstance(packet, SteeringSample) and SteeringRate in self.profile.measurements:
             rate = (s.odo_speed_mps or 0.0) * math.tan(packet.angle_rad) / \
@@ -395,14 +376,12 @@ class RoadFilter:
             n, total = s.still_gyro
             if s.still_samples >= self.config.stationary_after_samples:
                 s.still_gyro = (n + 1, total + packet.yaw_rate_rps)
-                rate = 0.0
-            else:
-                rate = packet.yaw_rate_rps - (total / n if n else 0.0)
+                return
+            rate = packet.yaw_rate_rps - (total / n if n else 0.0)
         else:
             return
-        if s.turn_sample_t is not None and packet.t > s.turn_sample_t:
-            s.turned_rad += rate * (packet.t - s.turn_sample_t)
-        s.turn_sample_t = packet.t
+        if s.t is not None and packet.t > s.t:
+            s.turned_rad += rate * (packet.t - s.t)
 
     def _remember_odometer(self, packet: Packet) -> None:
         if isinstance(packet, OdometerSample):
@@ -411,21 +390,10 @@ class RoadFilter:
             speed = self._odometer_speed(packet)
             if speed is not None:
                 self.state.odo_speed_mps = speed
-        self._count_path_to(packet.t)
-
-    def _count_path_to(self, t: float) -> None:
-        """Before start-up, dead reckoning's distance and path on to ``t`` (the time of the
-        state then): at the odometer's speed, or without one at unit speed."""
         s = self.state
-        odometer = OdometerSpeed in self.profile.measurements
-        speed = s.odo_speed_mps if odometer else 1.0
-        if speed is not None and s.t is not None and t > s.t:
-            step_m = speed * (t - s.t)
-            s.travelled_m += step_m if odometer else 0.0
-            right, ahead = s.driven_m  # the turn is counterclockwise, the heading clockwise
-            s.driven_m = (right - step_m * math.sin(s.turned_rad),
-                          ahead + step_m * math.cos(s.turned_rad))
-        s.t = t if s.t is None else max(s.t, t)
+        if s.odo_speed_mps is not None and s.t is not None and packet.t > s.t:
+            s.travelled_m += s.odo_speed_mps * (packet.t - s.t)
+        s.t = packet.t if s.t is None else max(s.t, packet.t)
 
     # --- GPS -----------------------------------------------------------------------------
     def _local(self, fix: GpsFix) -> tuple[float, float]:
@@ -446,7 +414,7 @@ class RoadFilter:
         starting value gets the variance of how it was obtained."""
         s, cfg = self.state, self.config
         bad = self._problem(fix)
-        self._count_path_to(fix.t)
+        s.t = fix.t if s.t is None else max(s.t, fix.t)
         if bad is not None:
             s.gps = GpsUsage(False, 0.0, bad)
             return
@@ -464,24 +432,25 @@ class RoadFilter:
             return
         heading = self._gps_course(fix)
         speed = self._measured_speed(fix)
-        self._drop_stale_baseline_fixes(fix.t)
-        first = s.baseline[0] if s.baseline else None
-        if heading is None and first is not None and fix.t > first.t:
-            moved = math.hypot(east - first.east_m, north - first.north_m)
-            spread = math.hypot(sigma, first.sigma_m)
-            s.baseline = (*s.baseline, self._baseline_fix(fix.t, east, north, sigma))
-            if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - first.t) or self._standing():
-                first = None  # an outlier, or a car standing still: start over
+        first = s.first_fix
+        if heading is None and first is not None and fix.t > first[0]:
+            t0, e0, n0, sigma0 = first
+            moved, spread = math.hypot(east - e0, north - n0), math.hypot(sigma, sigma0)
+            s.baseline_fixes = (*s.baseline_fixes, (fix.t, east, north, s.travelled_m))
+            if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing() or \
+                    fix.t - t0 > cfg.initial_heading_max_baseline_s or \
+                    abs(s.turned_rad) > cfg.initial_heading_max_turn_rad:
+                first = None  # an outlier, a car standing still, or fixes too far apart in
+                # time or turn for the line between them to be the heading: start over
             else:
-                fit = self._track_fit(sigma)
+                fit = self._odometer_track_fit(sigma)
                 if fit is not None and not fit.agrees:
-                    first = None  # fixes off the path dead reckoning drove (a jump of the
+                    first = None  # fixes off the line the odometer drove (a jump of the
                     # fixes among them): start over
                 else:
-                    heading = self._baseline_heading(fit, (first.east_m, first.north_m,
-                                                           east, north), moved, spread)
+                    heading = self._baseline_heading(fit, (e0, n0, east, north), moved, spread)
                     if heading is not None and speed is None:
-                        speed = self._baseline_speed(fix.t, east, north, sigma)
+                        speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
             if first is None:
                 self._start_heading_baseline(fix.t, east, north, sigma)
@@ -493,7 +462,7 @@ class RoadFilter:
         self._reset_from_gps(fix, east, north, heading,
                              speed or (0.0, cfg.initial_speed_sigma_mps ** 2))
         s.initialized = True
-        s.baseline = ()
+        s.first_fix = None
         if s.still_jump is not None and fix.t - s.still_jump[0] <= cfg.max_jump_s and \
                 cfg.gps_mode == GpsMode.EKF:
             self._start_between_tracks(s.still_jump)
@@ -509,32 +478,8 @@ class RoadFilter:
         frozen since, so the odometer test weighed the fixes against a distance long
         stale."""
         s = self.state
-        s.turned_rad, s.travelled_m, s.driven_m = 0.0, 0.0, (0.0, 0.0)
-        s.baseline = (self._baseline_fix(t, east, north, sigma_m),)
-
-    def _baseline_fix(self, t: float, east: float, north: float, sigma_m: float
-                      ) -> BaselineFix:
-        s = self.state
-        return BaselineFix(t, east, north, sigma_m, *s.driven_m, s.travelled_m, s.turned_rad)
-
-    def _drop_stale_baseline_fixes(self, t: float) -> None:
-        """Without an odometer the baseline slides: its fixes older than
-        ``initial_heading_max_baseline_s`` go, and those more than
-        ``initial_heading_max_turn_rad`` of turn back (the path is fitted at a constant
-        speed, which a car braking into a bend and pulling out of it does not keep); a
-        drive on bends with 26 s of fixes never started when the baseline started over
-        (the weighted modes' test drive 1). With an odometer the baseline starts over at
-        this fix instead, after ``initial_heading_max_odometer_turn_rad`` of turn (tune
-        split, 600 drives: sliding it gave mean log fused/raw +0.4 %, 15 drives better
-        and 34 worse: an older first fix let start-up come sooner on less)."""
-        s, cfg = self.state, self.config
-        odometer = self._odometer_counts()
-        max_turn = cfg.initial_heading_max_odometer_turn_rad if odometer else \
-            cfg.initial_heading_max_turn_rad
-        while s.baseline and (
-                t - s.baseline[0].t > cfg.initial_heading_max_baseline_s or
-                abs(s.turned_rad - s.baseline[0].turned_rad) > max_turn):
-            s.baseline = () if odometer else s.baseline[1:]
+        s.first_fix, s.turned_rad, s.travelled_m = (t, east, north, sigma_m), 0.0, 0.0
+        s.baseline_fixes = ((t, east, north, 0.0),)
 
     def _step_from_last_start_up_fix(self, t: float, east: float, north: float
                                      ) -> tuple[float, float, float] | None:
@@ -644,56 +589,28 @@ class RoadFilter:
                           moved_m: float, spread_m: float) -> tuple[float, float] | None:
         """The start-up heading and its variance once the baseline is
         ``initial_heading_min_move_m`` and ``initial_heading_min_move_sigmas`` of the fixes'
-        spread long: the fit's, turned on by the turn since the counts began, once the
-        odometer drove that far (the fixes' own distance is no baseline: a fix 22 m off
-        after a few metres driven made one, and the heading started with a sigma of 600
-        degrees) or without one the ends lie that far apart (``moved_m``); before an
-        odometer gives a speed, the bearing between the ends."""
+        spread long: with an odometer, the fit, once the odometer drove that far (the fixes'
+        own distance is no baseline: a fix 22 m off after a few metres driven made one, and
+        the heading started with a sigma of 600 degrees); without one, the bearing between
+        the ends (``moved_m`` apart), once they lie that far apart."""
         cfg = self.config
         min_move_m = max(cfg.initial_heading_min_move_m,
                          cfg.initial_heading_min_move_sigmas * spread_m)
-        s, first = self.state, self.state.baseline[0]
-        turned = s.turned_rad - first.turned_rad  # over the baseline
-        if fit is not None and fit.variance_rad2 == math.inf:
-            return None  # the path spans no distance yet
-        if fit is not None:  # its heading is that where the counts began
-            baseline_m = s.travelled_m - first.travelled_m if self._odometer_counts() \
-                else moved_m
-            return ((fit.heading_rad - s.turned_rad) % (2.0 * math.pi),
-                    fit.variance_rad2 + (TURN_ERROR_SHARE * turned) ** 2) \
-                if baseline_m >= min_move_m else None
+        if fit is not None:
+            return (fit.heading_rad, fit.variance_rad2) \
+                if self.state.travelled_m >= min_move_m else None
         return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= min_move_m \
             else None
 
-    def _baseline_speed(self, t: float, east: float, north: float, sigma_m: float
-                        ) -> tuple[float, float]:
-        """Without an odometer, the start-up speed and its variance from the baseline: the
-        distance to this fix from the earlier fix that gives the least variance, of the
-        fixes' spread over the time and of a car's change of speed in it (the mean speed over
-        a long baseline is not the speed now: a car pulling away started at 3 m/s while
-        driving 9)."""
-        best = (0.0, math.inf)
-        for f in self.state.baseline:
-            dt = t - f.t
-            if dt <= 0.0:
-                continue
-            var = (math.hypot(sigma_m, f.sigma_m) / dt) ** 2 + \
-                (TOWN_ACCEL_MPS2 * dt / 2.0) ** 2
-            if var < best[1]:
-                best = (math.hypot(east - f.east_m, north - f.north_m) / dt, var)
-        return best
-
-    def _track_fit(self, sigma_m: float) -> TrackFit | None:
-        """The start-up fixes fitted to the path dead reckoning drove (:func:`fit_track`):
-        with an odometer its distances, without one the turn at an unknown, constant speed;
-        None while a configuration's odometer has given no speed. Two fixes of which one had
-        jumped (non-line-of-sight) gave a heading 118 degrees off, and the drive ran 400 m
-        away; a test of the two ends alone let a run of fixes leaping 28 m east and back at
-        2 Hz start the heading 77 degrees off (Stockholm 465 of the tune split)."""
-        fixes = tuple(f[:3] + f[4:6] for f in self.state.baseline)
-        if OdometerSpeed not in self.profile.measurements:
-            return fit_track(fixes, sigma_m, scale_known=False)
-        return fit_track(fixes, sigma_m) if self._odometer_counts() else None
+    def _odometer_track_fit(self, sigma_m: float) -> TrackFit | None:
+        """With an odometer, the start-up fixes fitted to the line it drove
+        (:func:`fit_track`); None without one. Two fixes of which one had jumped
+        (non-line-of-sight) gave a heading 118 degrees off, and the drive ran 400 m away; a
+        test of the two ends alone let a run of fixes leaping 28 m east and back at 2 Hz
+        start the heading 77 degrees off (Stockholm 465 of the tune split)."""
+        if not self._odometer_counts():
+            return None
+        return fit_track(self.state.baseline_fixes, sigma_m)
 
     def _odometer_counts(self) -> bool:
         """The configuration has an odometer, and it has given a speed."""
