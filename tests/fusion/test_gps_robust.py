@@ -19,7 +19,14 @@ from navsvc.fusion.road.motion import (
     HEADING,
     SPEED,
 )
-from navsvc.types import GpsFix, ImuSample, OdometerSample, Packet, SteeringSample
+from navsvc.types import (
+    FusedEstimate,
+    GpsFix,
+    ImuSample,
+    OdometerSample,
+    Packet,
+    SteeringSample,
+)
 from roadgraph import LocalFrame
 
 FRAME = LocalFrame.for_point(7.42, 43.73)
@@ -68,6 +75,17 @@ def _run(packets: list[Packet], road_distance: RoadDistance | None = None
             if isinstance(p, GpsFix) and e.gps is not None:
                 out.append((p.t, math.hypot(e.x_m, e.y_m - _north_m(p.t)), e.gps.reason))
     return road, out
+
+
+def _first_estimate(road: RoadFilter, packets: list[Packet]) -> FusedEstimate:
+    """The filter's first estimate once started, after all ``packets`` are applied."""
+    start = None
+    for p in packets:
+        for e in road.apply(p):
+            if start is None and e.initialized:
+                start = e
+    assert start is not None, "the filter never started"
+    return start
 
 
 def test_standstill_gives_the_gyro_bias_at_start_up() -> None:
@@ -477,12 +495,7 @@ def test_start_up_heading_is_not_taken_from_fixes_sweeping_off_the_driven_line()
             lon, lat = FRAME.to_wgs84(east + noise_east, north_m(t) + noise_north)
             packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=3.5))
     road = RoadFilter(FusionConfig(), FRAME)
-    start = None
-    for p in packets:
-        for e in road.apply(p):
-            if start is None and e.initialized:
-                start = e
-    assert start is not None
+    start = _first_estimate(road, packets)
     assert abs(math.remainder(start.heading_rad, 2.0 * math.pi)) < 3.0 * start.heading_sigma_rad
     estimate = road.estimate()
     assert estimate is not None and math.hypot(estimate.x_m, estimate.y_m - north_m(30.0)) < 10.0
@@ -538,12 +551,6 @@ def test_steering_start_up_counts_the_turn_of_a_bend() -> None:
             east, north, _ = truth(t)
             lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, 1.0), north + rng.normal(0.0, 1.0))
             packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0))
-    road = RoadFilter(config, FRAME)
-    start = None
-    for p in packets:
-        for e in road.apply(p):
-            if start is None and e.initialized:
-                start = e
-    assert start is not None
+    start = _first_estimate(RoadFilter(config, FRAME), packets)
     error = math.remainder(start.heading_rad - truth(start.t)[2], 2.0 * math.pi)
     assert abs(error) < 3.0 * start.heading_sigma_rad, (start.t, math.degrees(error))
