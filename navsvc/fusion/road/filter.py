@@ -380,7 +380,11 @@ class RoadFilter:
             rate = packet.yaw_rate_rps - (total / n if n else 0.0)
         else:
             return
-        if s.t is not None and packet.t > s.t:
+        if s.t is not None and packet.t > s.t:  # over the time since the latest packet of
+            # any kind, as the gyro's turn always was: it misses a few per cent of the turn
+            # (intervals that end at an odometer or GPS packet), which the 10-degree limit
+            # was tuned with; counting between the sensor's own samples came with a start-up
+            # rework that did not hold out on the report split, and was taken back with it
             s.turned_rad += rate * (packet.t - s.t)
 
     def _remember_odometer(self, packet: Packet) -> None:
