@@ -7,18 +7,20 @@ The vehicle is on one directed edge of the intersection graph at a time:
 * **between intersections**: project onto the current edge and follow it.
 * **ambiguity region**: once the projection is within ``r_a`` of the edge's end node, every
   edge reachable from that node within ``2 r_a + 20 m`` (oneway respected, no U-turn except at
-  a dead end), and the current edge itself, is a hypothesis. Each epoch its probability is
-  updated from the distance to the road and from **turn detection**: the heading change
-  accumulated since entering the region against the road's own change of direction (which
-  cancels a constant heading error). The most probable road is reported; leaving the region
-  (further than ``r_a`` from the node) commits to it. While the vehicle stands the
-  probabilities hold: a standing car repeats its position and tells nothing new, and fixes
-  scattered about it would otherwise wear away what its turn showed.
+  a dead end; a U-turn is turning back along the road just driven, so a loop that returns to
+  its start by another way counts), and the current edge itself, is a hypothesis. Each epoch
+  its probability is updated from the distance to the road and from **turn detection**: the
+  heading change accumulated since entering the region against the road's own change of
+  direction (which cancels a constant heading error). The most probable road is reported;
+  leaving the region (further than ``r_a`` from the node) commits to it. While the vehicle
+  stands the probabilities hold: a standing car repeats its position and tells nothing new,
+  and fixes scattered about it would otherwise wear away what its turn showed.
 * **off road / lost**: far from the current road for a while (a car park) → ``off_road`` and
   a new start-up search each epoch; heading against the road for a while → ``lost``, then
   start-up; further than ``poor_fit_sigmas`` of road and position sigma for a while (the
   wrong branch of a narrow fork, running beside the right one) → start-up, which takes the
-  better road.
+  better road. The same holds in an ambiguity region once no hypothesis fits (a road the
+  region did not think of), rather than waiting to be far enough to count as off road.
 
 Ambiguity radius (the seed: expected drift times the map's longest adjacent-node distance;
 also at least ``k`` sigma of the filter's position)::
@@ -36,8 +38,10 @@ from dataclasses import dataclass, field
 
 from navsvc.errors import ConfigError
 from navsvc.types import EdgeRef, FusedEstimate, MatchedPosition, MatchState
-from roadgraph import EdgeKey, EdgeProjection, RoadGraph
+from roadgraph import EdgeKey, EdgeProjection, EdgeRecord, RoadGraph
 from roadgraph.geometry import wrap_angle_rad
+
+U_TURN_RAD = math.radians(150.0)  # back to the node just left, this sharply: a U-turn
 
 
 @dataclass(frozen=True)
@@ -158,18 +162,25 @@ class OnlineMatcher:
             return self._start(e)
         # the wrong one of two roads that fork at a small angle: no heading error, and for a
         # long way no further than off_road_distance_m, but clearly off it for its sigma
-        sigma = math.hypot(c.road_sigma_m, e.tracking_sigma_m)
-        poor = s.region is None and proj.distance_m > c.poor_fit_sigmas * sigma
-        s.poor_fit_since_t = (s.poor_fit_since_t if s.poor_fit_since_t is not None else e.t) \
-            if poor else None
-        if s.poor_fit_since_t is not None and e.t - s.poor_fit_since_t >= c.poor_fit_after_s:
-            s.edge, s.poor_fit_since_t = None, None
+        if s.region is None and self._fits_poorly(e, proj.distance_m):
             return self._start(e)
         if s.against_since_t is not None and e.t - s.against_since_t >= c.lost_after_s:
             s.edge, s.region, s.against_since_t = None, None, None
             return MatchedPosition(e, MatchState.LOST, e.x_m, e.y_m,
                                    distance_to_road_m=proj.distance_m)
         return None
+
+    def _fits_poorly(self, e: FusedEstimate, distance_m: float) -> bool:
+        """Further than ``poor_fit_sigmas`` from the best road for ``poor_fit_after_s``: then
+        the matcher forgets its road (the caller starts up again)."""
+        c, s = self.config, self.state
+        poor = distance_m > c.poor_fit_sigmas * math.hypot(c.road_sigma_m, e.tracking_sigma_m)
+        s.poor_fit_since_t = (s.poor_fit_since_t if s.poor_fit_since_t is not None else e.t) \
+            if poor else None
+        if s.poor_fit_since_t is None or e.t - s.poor_fit_since_t < c.poor_fit_after_s:
+            return False
+        s.edge, s.region, s.poor_fit_since_t = None, None, None
+        return True
 
     # --- ambiguity regions ---------------------------------------------------------------
     def _enter_region(self, e: FusedEstimate, proj: EdgeProjection) -> None:
@@ -188,7 +199,7 @@ class OnlineMatcher:
         while frontier:
             came, travelled = frontier.pop()
             outs = self.graph.out_edges(came.v)
-            turning = [o for o in outs if o.v != came.u] or outs  # U-turn only at dead ends
+            turning = [o for o in outs if not self._is_u_turn(came, o)] or outs  # dead end
             for out in turning:
                 key = EdgeKey(out.u, out.v, out.key)
                 if key in found or key == edge:
@@ -198,11 +209,17 @@ class OnlineMatcher:
                     frontier.append((key, travelled + out.length_m))
         return found
 
+    def _is_u_turn(self, came: EdgeKey, out: EdgeRecord) -> bool:
+        return out.v == came.u and abs(self.graph.turn_angle_rad(
+            came, EdgeKey(out.u, out.v, out.key))) > U_TURN_RAD
+
     def _in_region(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition:
         c, s = self.config, self.state
         region = s.region
         assert region is not None and s.edge is not None
         projections = {h: self.graph.project(h, e.x_m, e.y_m) for h in region.probabilities}
+        if self._fits_poorly(e, min(p.distance_m for p in projections.values())):
+            return self._start(e)  # on a road none of the hypotheses leads to
         if e.speed_mps < c.min_speed_for_heading_mps:  # standing: nothing new to learn
             return self._report(e, projections)
         turned = wrap_angle_rad(e.heading_rad - region.entry_heading_rad)

@@ -155,3 +155,67 @@ def test_standing_in_the_region_keeps_what_the_turn_showed() -> None:
                                                 speed=0.0)))
         t += 0.1
     assert all(edge_of(p) == (0, 2) for p in standing)
+
+
+def _graph(nodes: dict[int, tuple[float, float]],
+           edges: list[tuple[int, int, list[tuple[float, float]]]]) -> RoadGraph:
+    """Nodes at (dx, dy) from the frame's origin; one-way edges through interior points."""
+    from shapely.geometry import LineString
+    g = nx.MultiDiGraph()
+    for n, (dx, dy) in nodes.items():
+        g.add_node(n, x=X0 + dx, y=Y0 + dy)
+    for u, v, via in edges:
+        points = [nodes[u], *via, nodes[v]]
+        g.add_edge(u, v, oneway=True,
+                   geometry=LineString([(X0 + dx, Y0 + dy) for dx, dy in points]))
+    return RoadGraph.from_networkx(g, FRAME)
+
+
+def _along(points: list[tuple[float, float]], step_m: float) -> list[tuple[float, float, float]]:
+    """Points every ``step_m`` along a polyline, with the heading there (degrees)."""
+    out = []
+    for (xa, ya), (xb, yb) in zip(points, points[1:], strict=False):
+        length = math.hypot(xb - xa, yb - ya)
+        heading = math.degrees(math.atan2(xb - xa, yb - ya)) % 360.0
+        out += [(xa + (xb - xa) * s / length, ya + (yb - ya) * s / length, heading)
+                for s in np.arange(0.0, length, step_m)]
+    return out
+
+
+def test_a_loop_back_to_the_junction_is_followed() -> None:
+    """A one-way turning loop (Andorra has one): up its east side to the far node, back down
+    its west side to the junction, and away the way the car came. The way back is not a
+    U-turn (it turns 45° from the east side), so it must be among the region's hypotheses;
+    when it was not, the match stood at the far node while the car drove on."""
+    east = [(15.0, 10.0), (20.0, 20.0), (15.0, 30.0)]
+    west = [(-15.0, 30.0), (-20.0, 20.0), (-15.0, 10.0)]
+    graph = _graph({0: (0.0, -100.0), 1: (0.0, 0.0), 3: (0.0, 40.0), 4: (0.0, 140.0)},
+                   [(0, 1, []), (1, 0, []), (1, 3, east), (3, 1, west), (3, 4, []), (4, 3, [])])
+    path = [(0.0, -100.0), (0.0, 0.0), *east, (0.0, 40.0), *west, (0.0, 0.0), (0.0, -100.0)]
+    matcher = OnlineMatcher(graph, MatcherConfig(min_radius_m=25.0))  # 2 r + 20 m spans the loop
+    worst = 0.0
+    for k, (x, y, heading) in enumerate(_along(path, 0.8)):
+        p = matcher.update(estimate(0.1 * k, x, y, heading))
+        worst = max(worst, math.hypot(p.x_m - (X0 + x), p.y_m - (Y0 + y)))
+    assert edge_of(p) == (1, 0) and p.state == MatchState.ON_ROAD
+    assert worst < 5.0
+
+
+def test_a_road_no_hypothesis_leads_to_is_found_again_soon() -> None:
+    """Matched to the wrong one of two parallel roads 8 m apart, the car drives on where the
+    wrong one turns off. None of the region's roads leads on, so after ``poor_fit_after_s``
+    clearly off them all the matcher starts up again, rather than waiting to be 30 m off for
+    3 s (the match stood still at the junction for some 50 m)."""
+    graph = _graph({0: (0.0, -100.0), 1: (0.0, 0.0), 2: (0.0, 100.0), 5: (8.0, -100.0),
+                    6: (8.0, 0.0), 7: (100.0, 0.0)},
+                   [(0, 1, []), (1, 2, []), (5, 6, []), (6, 7, [])])
+    matcher = OnlineMatcher(graph)
+    assert edge_of(matcher.update(estimate(0.0, 5.0, -90.0, 0.0))) == (5, 6)  # the wrong one
+    matched = {}
+    for k in range(1, 220):  # north at 8 m/s, 10 Hz, 2 m beside the right road
+        y = -90.0 + 0.8 * k
+        p = matcher.update(estimate(0.1 * k, 2.0, y, 0.0))
+        matched[round(y)] = (edge_of(p), math.hypot(p.x_m - (X0 + 2.0), p.y_m - (Y0 + y)))
+    assert matched[-50][0] == (5, 6)  # 6 m off: within its sigma, no reason to doubt yet
+    assert matched[40][0] == (1, 2)
+    assert max(error for _, error in matched.values()) < 40.0
