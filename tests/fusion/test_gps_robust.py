@@ -40,7 +40,7 @@ def _north_m(t: float) -> float:
 
 
 def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
-           seed: int = 1, accuracy_m: float = 1.0) -> list[Packet]:
+           seed: int = 1, accuracy_m: float = 1.0, fix_rate_hz: int = 1) -> list[Packet]:
     """Stand still, then drive north at 10 m/s: gyro 100 Hz with a bias, odometer speed at
     10 Hz, a fix a second (1 m noise, no course); ``jumps`` adds (start, end, east offset)."""
     rng = np.random.default_rng(seed)
@@ -50,7 +50,7 @@ def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
         packets.append(ImuSample(t, yaw_rate_rps=GYRO_BIAS_RPS + rng.normal(0.0, 0.002)))
         if k % 10 == 0:
             packets.append(OdometerSample(t, speed_mps=SPEED_MPS if t > STILL_S else 0.0))
-        if k % 100 == 0:
+        if k % (100 // fix_rate_hz) == 0:
             east = sum(offset for start, end, offset in jumps if start <= t < end)
             lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, accuracy_m),
                                       _north_m(t) + rng.normal(0.0, accuracy_m))
@@ -242,6 +242,22 @@ def test_one_good_fix_between_refused_jumps_confirms_the_dead_reckoned_track() -
     second = [f for f in fixes if 81.0 <= f[0] < 100.0]
     assert all(err < 10.0 and reason.startswith("refused: jumped")
                for _, err, reason in second), second
+
+def test_fixes_of_a_refused_jump_that_come_within_the_gate_are_still_refused() -> None:
+    """10 Hz fixes (3 m) jump 40 m east for 30 s; for 3 s of it they come back to 30 m,
+    within the gate of fixes this frequent. They lie nearer where the fixes jumped to than
+    the track, so they are the run's, not the track's return: taken, they ended the refusal
+    and the run was followed (42 m off)."""
+    for seed in (1, 2, 3):
+        packets = _drive(120.0, [(60.0, 90.0, 40.0), (70.0, 73.0, -10.0)], seed=seed,
+                         accuracy_m=3.0, fix_rate_hz=10)
+        _, fixes = _run(packets)
+        during = [f for f in fixes if 60.0 <= f[0] < 90.0]
+        assert all(err < 6.0 and reason.startswith("refused:")
+                   for _, err, reason in during), (seed, during)
+        assert any(reason.startswith("refused: nearer the jumped fixes")
+                   for _, _, reason in during)
+
 
 def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
     """Fixes that jump 50 m off a track not settled yet (2 s after start-up) are followed;

@@ -762,6 +762,10 @@ class RoadFilter:
                 return
             self._refused_fix(fix, east, north, (z, h, H, R), nis, min(dt_s, 1.0))
             return
+        if nis > cfg.gps_huber_nis and self._with_the_jumped_fixes(fix.t, y):
+            s.gps = GpsUsage(False, 0.0, "refused: nearer the jumped fixes than the track "
+                             "(non-line-of-sight?)", nis=nis)
+            return
         if math.isfinite(nis):
             memory = cfg.gps_nis_memory_fixes * fixes_per_s
             s.gps_nis_mean += (min(nis, 10.0 * cfg.gps_huber_nis) - s.gps_nis_mean) / memory
@@ -978,6 +982,23 @@ class RoadFilter:
         s.jump_offset_m = (float(innovation[0]), float(innovation[1]))
         s.jump_fit = (0, 0.0, 0.0, 0.0, 0.0)
         return True
+
+    def _with_the_jumped_fixes(self, t: float, innovation: Array) -> bool:
+        """While a jump of a non-line-of-sight run's size (beyond ``jump_spread_m``) is
+        refused, a fix that gets through the gate but past the Huber limit, and lies at
+        least twice as near where the fixes jumped to as the track, is one of the run, not
+        the track's return: taken, it ended the refusal and the rest of the run was followed
+        (10 Hz fixes, whose gate is wide). Tune split, 600 drives: mean log fused/raw -0.6 %
+        (13 better, 9 worse), no target count changed. Without the size bound, -2.1 % (77
+        better, 60 worse), but a 4 m "jump" of 1 m fixes, which was the estimate drifting
+        after a re-acquisition, then kept refusing the true fixes; without it and with
+        "nearer" in place of "twice as near", -2.4 % but 20 drives above 0.9x raw, not 16."""
+        s, cfg = self.state, self.config
+        if s.jump_since_t is None or t - s.jump_since_t >= cfg.max_jump_s or \
+                math.hypot(*s.jump_offset_m) <= cfg.jump_spread_m:
+            return False
+        return math.hypot(innovation[0] - s.jump_offset_m[0],
+                          innovation[1] - s.jump_offset_m[1]) < 0.5 * math.hypot(*innovation)
 
     def _gps_sigma_learnt(self, fix: GpsFix) -> float:
         """The fix's sigma, scaled by the running mean of the NIS (innovation-based
