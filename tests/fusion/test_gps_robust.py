@@ -259,6 +259,18 @@ def test_fixes_of_a_refused_jump_that_come_within_the_gate_are_still_refused() -
                    for _, _, reason in during)
 
 
+def test_after_a_gap_fixes_nearer_the_jump_are_not_refused_as_the_run() -> None:
+    """The same fixes, but coming back after a 30 s outage already 40 m off: a leap then
+    may be the true fixes returning to an estimate that drifted, so those that get through
+    the gate are not refused as part of the run."""
+    packets = [p for p in _drive(95.0, [(70.0, 100.0, 40.0), (72.0, 75.0, -10.0)],
+                                 accuracy_m=3.0, fix_rate_hz=10)
+               if not (isinstance(p, GpsFix) and 40.0 <= p.t < 70.0)]
+    _, fixes = _run(packets)
+    assert not any(reason.startswith("refused: nearer the jumped fixes")
+                   for _, _, reason in fixes)
+
+
 def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
     """Fixes that jump 50 m off a track not settled yet (2 s after start-up) are followed;
     when they jump back by the same offset, the filter is back on them at that fix, and the
