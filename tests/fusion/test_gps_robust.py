@@ -17,6 +17,7 @@ from navsvc.fusion.road.motion import (
     GPS_LATENCY,
     GYRO_BIAS,
     HEADING,
+    ODO_SCALE,
     SPEED,
 )
 from navsvc.types import (
@@ -470,6 +471,38 @@ def test_fixes_beyond_any_non_line_of_sight_error_restart_a_lost_estimate() -> N
     restart = next(i for i, (_, _, reason) in enumerate(back) if reason.startswith("re-acq"))
     assert restart <= 3, back
     assert all(err < 5.0 for _, err, _ in back[restart + 5:]), back
+
+
+def test_a_lost_estimate_restarts_with_the_sensor_errors_it_had_before_the_refusals() -> None:
+    """After a 60 s gap the fixes come back 160 m ahead of dead reckoning (along the track,
+    where the error looks like the odometer's scale). The refused fixes pull the scale
+    before the estimate is found lost; restarting, it goes back to the scale it had
+    learnt before them, not to the pull of fixes from a lost state."""
+    packets: list[Packet] = []
+    for p in _drive(150.0, []):
+        if isinstance(p, GpsFix) and 30.0 <= p.t < 90.0:
+            continue
+        if isinstance(p, GpsFix) and p.t >= 90.0:
+            east, north = FRAME.to_local(p.lon_deg, p.lat_deg)
+            lon, lat = FRAME.to_wgs84(east, north + 160.0)
+            p = replace(p, lat_deg=lat, lon_deg=lon)
+        packets.append(p)
+    road = RoadFilter(FusionConfig(), FRAME)
+    before, pulled = None, None
+    for p in packets:
+        if isinstance(p, GpsFix) and p.t == 90.0:
+            before = float(road.state.x[ODO_SCALE])
+        road.apply(p)
+        reason = road.state.gps.reason if road.state.gps is not None else ""
+        if isinstance(p, GpsFix) and p.t > 90.0 and pulled is None and \
+                reason.startswith("down-weighted"):
+            pulled = float(road.state.x[ODO_SCALE])
+        if isinstance(p, GpsFix) and reason.startswith("re-acquiring"):
+            assert before is not None and pulled is not None
+            assert abs(pulled - before) > 0.01  # the refused fixes did pull the scale
+            assert road.state.x[ODO_SCALE] == before
+            return
+    raise AssertionError("the filter never re-acquired")
 
 
 def test_weighted_modes_restart_from_fixes_beyond_any_non_line_of_sight_error() -> None:
