@@ -86,6 +86,9 @@ OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on 
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
 TURN_RATE_ERRORS = (GYRO_BIAS, GYRO_SCALE)  # what a fix past the gate leaves alone (ekf)
+CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)  # the sensor-error states: what
+# GPS calibrates by a Kalman gain in the rules and fuzzy modes (the thesis's weights decide
+# position, heading and speed), and what a lost estimate restarts with as learnt before (ekf)
 
 
 @dataclass
@@ -121,7 +124,7 @@ class RoadState:
     # of the estimate's track and of the jumped one
     gated_offset_m: tuple[float, float] | None = None  # where the refused run's first fix lay
     calibration_before_gated: tuple[tuple[float, float], ...] = ()  # ... and the sensor
-    # errors then: (value, variance) of each of RoadFilter.CALIBRATED
+    # errors then: (value, variance) of each of CALIBRATED
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
     still_fixes: tuple[int, float, float, float] = (0, 0.0, 0.0, 0.0)  # before start-up, fixes
@@ -1056,7 +1059,7 @@ class RoadFilter:
         if s.first_gated_t is None:
             s.first_gated_t, s.gated_offset_m = fix.t, (float(z[0] - h[0]), float(z[1] - h[1]))
             s.calibration_before_gated = tuple((float(s.x[i]), float(s.P[i, i]))
-                                               for i in self.CALIBRATED)
+                                               for i in CALIBRATED)
         lost = self._refused_from_afar() and s.gated_fixes >= 3 and \
             fix.t - s.first_gated_t >= cfg.gps_lost_after_s
         if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s \
@@ -1086,7 +1089,7 @@ class RoadFilter:
         1.25, and the restarted filter kept it and drove 20 % short (2.59 -> 2.31x raw GPS;
         the other 599 tune drives within 2 %)."""
         s = self.state
-        for i, (value, variance) in zip(self.CALIBRATED, s.calibration_before_gated):
+        for i, (value, variance) in zip(CALIBRATED, s.calibration_before_gated):
             s.x[i] = value
             _reset_variance(s.P, i, variance)
 
@@ -1134,9 +1137,6 @@ class RoadFilter:
             _reset_variance(s.P, SPEED, 1.0)
             s.gated_courses = 0
 
-    # rules, fuzzy: the states GPS calibrates by a Kalman gain (the thesis's weights decide
-    # position, heading and speed)
-    CALIBRATED = (GYRO_BIAS, ODO_SCALE, ACCEL_BIAS, GYRO_SCALE)
     GYRO_BIAS_SIGMAS = 3.0  # rules, fuzzy: the gyro (or steering) bias within this many
     # of its starting sigma (MEMS gyros: within a degree or two a second)
     ACCEL_BIAS_LIMIT_MPS2 = 0.5  # ... and the forward accelerometer's within this
@@ -1343,7 +1343,7 @@ class RoadFilter:
         if float(y @ S_inv @ y) <= kalman.gate_limit(len(z)):  # past the gate the error is
             # not the small one the linearisation assumes (a heading 160 degrees off put
             # 7 deg/s into the gyro bias): the thesis's weights alone
-            calibrated = list(self.CALIBRATED)
+            calibrated = list(CALIBRATED)
             K[calibrated, :] = (PHt @ S_inv)[calibrated, :]
         for row, state in enumerate(states):
             if state is not None:
