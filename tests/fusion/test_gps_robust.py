@@ -615,3 +615,49 @@ def test_steering_start_up_counts_the_turn_of_a_bend() -> None:
     start = _first_estimate(RoadFilter(config, FRAME), packets)
     error = math.remainder(start.heading_rad - truth(start.t)[2], 2.0 * math.pi)
     assert abs(error) < 3.0 * start.heading_sigma_rad, (start.t, math.degrees(error))
+
+
+def _with_course(packets: list[Packet]) -> list[Packet]:
+    """The drive's fixes with the receiver's course and speed (north, 10 m/s) once moving."""
+    return [replace(p, speed_mps=SPEED_MPS, heading_rad=0.0)
+            if isinstance(p, GpsFix) and p.t > STILL_S + 1.0 else p for p in packets]
+
+
+def _heading_error_deg(road: RoadFilter) -> float:
+    return abs(math.degrees(math.remainder(road.state.x[HEADING], 2.0 * math.pi)))
+
+
+def test_a_refused_fix_still_gives_its_course_and_a_heading_far_off_takes_it() -> None:
+    """A heading knocked 160 degrees off: every fix lies too far from where the estimate
+    drove to pass the gate, and none would correct the heading. Their course and speed are
+    still fused; refused in turn, they replace the heading within a few fixes, after which
+    the fixes are taken again."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    reasons, heading_errors = [], []
+    for p in _with_course(_drive(90.0, [])):
+        if isinstance(p, GpsFix) and p.t == 30.0:
+            road.state.x[HEADING] += math.radians(160.0)
+            road.state.tracking_since_t = None  # as just after start-up
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and p.t > 30.0 and e.gps is not None:
+                reasons.append(e.gps.reason)
+                heading_errors.append(_heading_error_deg(road))
+    assert "down-weighted: innovation too large" in reasons[:3], reasons
+    assert max(heading_errors[5:]) < 5.0, heading_errors
+    assert all(r in ("accepted", "down-weighted") for r in reasons[15:]), reasons
+
+
+def test_a_refused_jump_still_gives_its_course() -> None:
+    """A non-line-of-sight run 50 m east of a settled track is refused as a jump; its
+    course (the velocity is not moved by the reflection) still holds a heading knocked
+    20 degrees off at the run's start, which dead reckoning alone would keep."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    during = []
+    for p in _with_course(_drive(100.0, [(60.0, 90.0, 50.0)])):
+        if isinstance(p, GpsFix) and p.t == 60.0:
+            road.state.x[HEADING] += math.radians(20.0)
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and 60.0 <= p.t < 90.0 and e.gps is not None:
+                during.append((e.gps.reason, _heading_error_deg(road)))
+    assert all(reason.startswith("refused: jumped") for reason, _ in during[2:]), during
+    assert max(err for _, err in during[10:]) < 3.0, during
