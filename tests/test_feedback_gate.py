@@ -16,10 +16,11 @@ CONFIG = SessionConfig()
 
 def _match(distance_m: float, sigma_m: float, *, heading_deg: float = 0.0,
            state: MatchState = MatchState.ON_ROAD, speed_mps: float = 10.0,
-           ambiguous: bool = False) -> MatchedPosition:
+           ambiguous: bool = False, heading_sigma_deg: float = 2.0) -> MatchedPosition:
     estimate = FusedEstimate(t=1.0, x_m=distance_m, y_m=0.0,
                              heading_rad=math.radians(heading_deg), speed_mps=speed_mps,
-                             yaw_rate_rps=0.0, position_cov_m2=np.eye(2) * sigma_m ** 2)
+                             yaw_rate_rps=0.0, position_cov_m2=np.eye(2) * sigma_m ** 2,
+                             heading_sigma_rad=math.radians(heading_sigma_deg))
     return MatchedPosition(estimate=estimate, state=state, x_m=0.0, y_m=0.0,
                            distance_to_road_m=distance_m, road_bearing_rad=0.0,
                            in_ambiguity_region=ambiguous)
@@ -44,6 +45,13 @@ def test_no_feedback_when_unsure_of_the_road_itself() -> None:
     assert not feedback_wanted(_match(1.0, 2.0, state=MatchState.OFF_ROAD), CONFIG)
     assert not feedback_wanted(_match(1.0, 2.0, heading_deg=30.0), CONFIG)
     assert not feedback_wanted(_match(1.0, 2.0, speed_mps=0.5), CONFIG)
+
+
+def test_no_feedback_while_the_heading_is_unknown() -> None:
+    """A heading sure to 45 degrees still takes a road along it; one sure to no better than
+    a random guess (a restart) does not: any road lies within 20 degrees of some heading."""
+    assert feedback_wanted(_match(3.0, 20.0, heading_sigma_deg=45.0), CONFIG)
+    assert not feedback_wanted(_match(3.0, 20.0, heading_sigma_deg=104.0), CONFIG)
 
 
 @given(st.floats(0.0, 200.0), st.floats(0.1, 50.0))
