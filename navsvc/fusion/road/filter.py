@@ -720,22 +720,22 @@ class RoadFilter:
           second are not taken as independent (their errors are one slowly changing error).
         - Past ``gps_huber_nis`` it pulls as a fix at that NIS would (Huber), so that a run of
           biased fixes is down-weighted, not followed.
-        - Past the chi-square gate its position is refused, but its course and speed are
-          still fused (gated on their own): non-line-of-sight error moves the position, not
-          the velocity, and a heading far off is reset after a few refused courses. A start
-          160 degrees off (two accelerometers, Monaco 66 of the tune split) had every fix
-          refused and ran 3 km away; tune split, 120 drives each, against fusing no course
-          with a refused fix: mean log fused/raw gyro_accel -12.1 % (36 drives better, 11
-          worse), gyro_two_accels -9.3 % (28/19, worst 13.0 -> 7.7x raw), gyro_odometer
-          (600 drives) -0.5 % (102/93), steering_odometer +1.7 % (19/23; no target count
-          changed). Fusing it only with fixes pulled at the Huber limit, not with a refused
-          jump, gained a fifth as much. Not GPS alone: with no dead reckoning its course is
-          its heading, and fused with the fixes refused at a departure from a stop it made
-          the next ones a "jump" from a track it did not have.
         - Past the chi-square gate it is refused, but still pulls as one at the Huber limit;
           when fixes keep being refused the position variance widens by a fix's variance a
           second, so that fixes which agree with each other are taken within seconds; after
           ``reacquire_after_gated_s`` the filter starts over from GPS.
+        - A fix whose position is refused past the gate still has its course and speed fused
+          (gated on their own): non-line-of-sight error moves the position, not the
+          velocity, and a heading far off is reset after a few refused courses. A start 160
+          degrees off (two accelerometers, Monaco 66 of the tune split) had every fix
+          refused and ran 3 km away; tune split, 120 drives each, against fusing no course
+          with a refused fix: mean log fused/raw gyro_accel -12.1 % (36 drives better, 11
+          worse), gyro_two_accels -9.3 % (28/19, worst 13.0 -> 7.7x raw), gyro_odometer (600
+          drives) -0.5 % (102/93), steering_odometer +1.7 % (19/23; no target count
+          changed). Fusing it only with fixes pulled at the Huber limit, not with a refused
+          jump, gained a fifth as much. Not GPS alone: with no dead reckoning its course is
+          its heading, and fused with the fixes refused at a departure from a stop it made
+          the next ones a "jump" from a track it did not have.
         - With a map, a fix lying farther from every road than the estimate on its road (by
           more than 2 sigma) has that excess added to its sigma in the update (not in the
           gate): a non-line-of-sight fix off the roads pulls less (tune split, 120 drives:
@@ -781,7 +781,7 @@ class RoadFilter:
             if s.initialized and course is not None and fix.speed_mps is not None and \
                     not course_taken and not self.profile.gps_alone:
                 self._fuse_gps_course(course[0], fix.speed_mps)  # a refused position
-                # leaves its velocity usable (third point above)
+                # leaves its velocity usable (see the docstring)
             return
         if nis > cfg.gps_huber_nis and self._with_the_jumped_fixes(fix.t, y):
             s.gps = GpsUsage(False, 0.0, "refused: nearer the jumped fixes than the track "
