@@ -790,7 +790,7 @@ class RoadFilter:
         east, north = self._local(fix)
         sigma_learnt = self._gps_sigma_learnt(fix)
         self._learn_gps_error_from_map(east, north, min(dt_s, 1.0), sigma_learnt)
-        white = self._set_bias_sigma(sigma_learnt, dt_s)
+        white = self._set_bias_sigma(sigma_learnt, fix.t, dt_s)
         self._propagate_gps_bias(fix.t)
         roads_m = self._road_distances_m(east, north)
         self._widen_off_road(fix.t, roads_m)
@@ -941,14 +941,14 @@ class RoadFilter:
             return 0.0
         return max(roads_m[1] - roads_m[0] - 2.0 * sigma_m, 0.0)
 
-    def _set_bias_sigma(self, sigma_m: float, dt_s: float) -> float:
+    def _set_bias_sigma(self, sigma_m: float, t: float, dt_s: float) -> float:
         """A fix's sigma split (:meth:`_split_sigma`): the bias's steady sigma set, its
         bound's sigma shrinking no faster than the bias decays (a fix whose HDOP halved had the
         bound push a 34 m non-line-of-sight offset the bias states held into the position);
         the white part returned."""
         s = self.state
         white, s.gps_bias_sigma_m = self._split_sigma(sigma_m)
-        decay = math.exp(-max(dt_s, 0.0) / self.config.gps_bias_tau_s)
+        decay = math.exp(-max(dt_s, 0.0) / self._gps_bias_tau_s(t))
         s.gps_bias_bound_sigma_m = max(s.gps_bias_sigma_m, s.gps_bias_bound_sigma_m * decay)
         return white
 
@@ -957,12 +957,17 @@ class RoadFilter:
         share = self.config.gps_bias_share
         return sigma_m * math.sqrt(1.0 - share ** 2), sigma_m * share
 
+    def _gps_bias_tau_s(self, t: float) -> float:
+        """The GPS bias's time constant: infinite while it holds the leap of a start between
+        two tracks (:meth:`_start_between_tracks`)."""
+        held = self.state.bias_held_until_t
+        return math.inf if held is not None and t <= held else self.config.gps_bias_tau_s
+
     def _propagate_gps_bias(self, t: float) -> None:
-        s, cfg = self.state, self.config
+        s = self.state
         if s.gps_bias_t is not None:
-            held = s.bias_held_until_t is not None and t <= s.bias_held_until_t
-            tau_s = math.inf if held else cfg.gps_bias_tau_s
-            motion.propagate_gps_bias(s.x, s.P, t - s.gps_bias_t, tau_s, s.gps_bias_sigma_m)
+            motion.propagate_gps_bias(s.x, s.P, t - s.gps_bias_t, self._gps_bias_tau_s(t),
+                                      s.gps_bias_sigma_m)
         s.gps_bias_t = t
 
     def _tracking(self, t: float, nis: float) -> None:
@@ -1222,7 +1227,7 @@ class RoadFilter:
         fix, track_var = self._with_velocity(fix, east, north)
         sigma = self._sigma_m(fix)
         self._learn_gps_error_from_map(east, north, min(dt_s, 1.0), sigma)
-        white = self._set_bias_sigma(sigma, dt_s)
+        white = self._set_bias_sigma(sigma, fix.t, dt_s)
         self._propagate_gps_bias(fix.t)
         fixes_per_s = max(1.0, 1.0 / max(dt_s, 1e-3))
         m = self._weighted_position(east, north, white * math.sqrt(fixes_per_s))
