@@ -250,6 +250,20 @@ def test_a_jump_two_fixes_after_an_outage_is_refused_as_from_the_track() -> None
     assert all(reason.startswith("refused: jumped") for _, _, reason in during)
 
 
+def test_a_gap_without_fixes_stops_the_clock_of_a_refused_jump() -> None:
+    """The fixes leap 100 m east for 100 s, and 55 s of it have no fixes at all: when they
+    come back the jump has been refused for 5 s of fixes, not 60 s, so they are still
+    refused (not pulled at and followed, as a jump run out after ``max_jump_s``); when dead
+    reckoning's grown variance lets the run through, its end is followed at once."""
+    packets = [p for p in _drive(160.0, [(40.0, 140.0, 100.0)])
+               if not (isinstance(p, GpsFix) and 45.0 <= p.t < 100.0)]
+    _, fixes = _run(packets)
+    back = [f for f in fixes if 100.0 <= f[0] < 110.0]
+    assert back and all(err < 20.0 and reason.startswith("refused")
+                        for _, err, reason in back), back
+    assert all(err < 5.0 for t, err, _ in fixes if t >= 141.0)
+
+
 def test_one_good_fix_between_refused_jumps_confirms_the_dead_reckoned_track() -> None:
     """After a 20 s outage the fixes come back 50 m off (refused as a jump), then one fix
     agrees with dead reckoning, then they leap 50 m off again: that fix confirmed the track
