@@ -6,6 +6,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
 from navsvc.fusion.gnss import RoadDistance
@@ -250,6 +251,19 @@ def test_a_jump_two_fixes_after_an_outage_is_refused_as_from_the_track() -> None
     assert all(reason.startswith("refused: jumped") for _, _, reason in during)
 
 
+@pytest.mark.parametrize("fix_rate_hz", [1, 10])
+def test_a_leap_of_the_fixes_soon_after_start_up_is_refused_as_a_jump(fix_rate_hz: int
+                                                                      ) -> None:
+    """The filter starts at about 12 s; at 14 s, a track too young to be trusted over a
+    jump, the fixes leap 40 m east for 20 s. One step from the fix before, which dead
+    reckoning never makes: refused as a jump, not pulled at and followed."""
+    _, fixes = _run(_drive(60.0, [(14.0, 34.0, 40.0)], fix_rate_hz=fix_rate_hz))
+    during = [f for f in fixes if 14.0 <= f[0] < 34.0]
+    assert all(err < 10.0 and reason.startswith("refused")
+               for _, err, reason in during), during
+    assert all(err < 3.0 for t, err, _ in fixes if t >= 35.0)
+
+
 def test_a_gap_without_fixes_stops_the_clock_of_a_refused_jump() -> None:
     """The fixes leap 100 m east for 100 s, and 55 s of it have no fixes at all: when they
     come back the jump has been refused for 5 s of fixes, not 60 s, so they are still
@@ -305,12 +319,11 @@ def test_after_a_gap_fixes_nearer_the_jump_are_not_refused_as_the_run() -> None:
 
 
 def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
-    """Fixes that jump 50 m off a track not settled yet (2 s after start-up) are followed;
-    when they jump back by the same offset, the filter is back on them at that fix, and the
-    GPS bias states keep nothing of the jump."""
-    back_t = STILL_S + 34.0
-    road, fixes = _run(_drive(back_t + 20.0, [(STILL_S + 4.0, back_t, 50.0)]))
-    assert fixes[0][0] == STILL_S + 2.0 and fixes[0][2] == "initialised from GPS"
+    """Fixes that jump 50 m off the track for 75 s are refused for ``max_jump_s``, then
+    followed; when they jump back by the same offset, the filter is back on them at that
+    fix, and the GPS bias states keep nothing of the jump."""
+    back_t = STILL_S + 85.0
+    road, fixes = _run(_drive(back_t + 20.0, [(STILL_S + 10.0, back_t, 50.0)]))
     assert [err > 30.0 for t, err, _ in fixes if back_t - 10.0 <= t < back_t] == [True] * 10
     back = [f for f in fixes if f[0] >= back_t]
     assert back[0][2] == "re-acquired: the fixes jumped back"
