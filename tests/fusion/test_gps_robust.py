@@ -42,9 +42,11 @@ def _north_m(t: float) -> float:
 
 
 def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
-           seed: int = 1, accuracy_m: float = 1.0, fix_rate_hz: int = 1) -> list[Packet]:
+           seed: int = 1, accuracy_m: float = 1.0, fix_rate_hz: int = 1,
+           noise_m: float | None = None) -> list[Packet]:
     """Stand still, then drive north at 10 m/s: gyro 100 Hz with a bias, odometer speed at
-    10 Hz, a fix a second (1 m noise, no course); ``jumps`` adds (start, end, east offset)."""
+    10 Hz, a fix a second (reporting ``accuracy_m``, with ``noise_m`` of noise new at each
+    fix, by default the same; no course); ``jumps`` adds (start, end, east offset)."""
     rng = np.random.default_rng(seed)
     packets: list[Packet] = []
     for k in range(int(duration_s * 100)):
@@ -54,8 +56,9 @@ def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
             packets.append(OdometerSample(t, speed_mps=SPEED_MPS if t > STILL_S else 0.0))
         if k % (100 // fix_rate_hz) == 0:
             east = sum(offset for start, end, offset in jumps if start <= t < end)
-            lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, accuracy_m),
-                                      _north_m(t) + rng.normal(0.0, accuracy_m))
+            noise = accuracy_m if noise_m is None else noise_m
+            lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, noise),
+                                      _north_m(t) + rng.normal(0.0, noise))
             packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=accuracy_m))
     return packets
 
@@ -291,13 +294,13 @@ def test_one_good_fix_between_refused_jumps_confirms_the_dead_reckoned_track() -
                for _, err, reason in second), second
 
 def test_fixes_of_a_refused_jump_that_come_within_the_gate_are_still_refused() -> None:
-    """10 Hz fixes (3 m) jump 40 m east for 30 s; for 3 s of it they come back to 30 m,
-    within the gate of fixes this frequent. They lie nearer where the fixes jumped to than
-    the track, so they are the run's, not the track's return: taken, they ended the refusal
-    and the run was followed (42 m off)."""
+    """10 Hz fixes (reporting 3 m, 1 m of it new at each fix) jump 40 m east for 30 s; for
+    3 s of it they come back to 30 m, within the gate of fixes this frequent. They lie
+    nearer where the fixes jumped to than the track, so they are the run's, not the track's
+    return: taken, they ended the refusal and the run was followed (42 m off)."""
     for seed in (1, 2, 3):
         packets = _drive(120.0, [(60.0, 90.0, 40.0), (70.0, 73.0, -10.0)], seed=seed,
-                         accuracy_m=3.0, fix_rate_hz=10)
+                         accuracy_m=3.0, fix_rate_hz=10, noise_m=1.0)
         _, fixes = _run(packets)
         during = [f for f in fixes if 60.0 <= f[0] < 90.0]
         assert all(err < 6.0 and reason.startswith("refused:")
