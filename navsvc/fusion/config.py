@@ -41,7 +41,8 @@ class FusionConfig:
     max_gps_latency_s: float = 0.5
     min_speed_for_gps_heading_mps: float = 2.8  # thesis m_GPSVelocityThreshold
     gps_gate_scale: float = 1.0  # chi-square gate multiplier (ekf mode)
-    gps_nis_memory_fixes: float = 30.0  # ekf: the fixes the GPS error level is learnt over
+    gps_nis_memory_fixes: float = 10.0  # ekf: the fixes (seconds' worth, at any rate) the
+    # GPS error level is learnt over
     gps_huber_nis: float = 5.99  # ekf: a fix past this NIS (95 %, 2 dof) pulls as one at it
     gps_bias_share: float = 0.85  # ekf: of a fix's sigma, the part that is a slowly changing
     # error (two bias states carry it; averaging fixes does not remove it)

@@ -416,9 +416,11 @@ def _shift_by_one_fix(east_offset_m: float, road_distance: RoadDistance | None) 
 
 
 def test_a_fix_off_the_road_the_estimate_is_on_weighs_less() -> None:
-    alone, with_map = _shift_by_one_fix(14.0, None), _shift_by_one_fix(14.0, _north_road_distance)
+    """A fix 13 m off the road, 2 m beyond two of its learnt sigmas (which a fix 14 m off
+    already leaves beyond the gate), pulls less with the map."""
+    alone, with_map = _shift_by_one_fix(13.0, None), _shift_by_one_fix(13.0, _north_road_distance)
     assert alone > 0.5  # accepted: within the gate
-    assert with_map < 0.8 * alone
+    assert with_map < 0.9 * alone
     # within two sigmas of the road the map changes nothing
     assert _shift_by_one_fix(6.0, _north_road_distance) == _shift_by_one_fix(6.0, None)
 
