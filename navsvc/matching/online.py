@@ -21,6 +21,8 @@ The vehicle is on one directed edge of the intersection graph at a time:
   wrong branch of a narrow fork, running beside the right one) → start-up, which takes the
   better road. The same holds in an ambiguity region once no hypothesis fits (a road the
   region did not think of), rather than waiting to be far enough to count as off road.
+* **jump**: an estimate that moved farther than its speed and uncertainty explain since the
+  last update (the filter re-acquired GPS) → start-up at once.
 
 Ambiguity radius (the seed: expected drift times the map's longest adjacent-node distance;
 also at least ``k`` sigma of the filter's position)::
@@ -57,6 +59,8 @@ class MatcherConfig:
     prior_keep: float = 0.85  # weight of the previous probabilities at each epoch
     confident_probability: float = 0.8  # below this a region reports ``ambiguous``
     startup_radius_m: tuple[float, float] = (25.0, 150.0)  # clamp of 3 sigma + 15 m
+    jump_m: float = 15.0  # the estimate moved this much (or 3 sigma) more than its speed
+    # explains since the last update: it jumped (a re-acquired fix) → start-up at once
     off_road_distance_m: float = 30.0  # (or 4 sigma, the larger) from the current road ...
     off_road_after_s: float = 3.0  # ... for this long → off road
     lost_heading_rad: float = math.radians(60.0)  # against the road ...
@@ -93,6 +97,8 @@ class MatcherState:
     against_since_t: float | None = None
     poor_fit_since_t: float | None = None
     off_road: bool = False
+    last_estimate: tuple[float, float, float, float] | None = None  # (t, x_m, y_m,
+    # tracking_sigma_m) of the last update
 
 
 class OnlineMatcher:
@@ -114,6 +120,10 @@ class OnlineMatcher:
         if not e.initialized:
             return MatchedPosition(e, MatchState.INITIALIZING, e.x_m, e.y_m)
         s = self.state
+        jumped = self._jumped(e)
+        s.last_estimate = (e.t, e.x_m, e.y_m, e.tracking_sigma_m)
+        if jumped:
+            s.edge, s.region, s.far_since_t, s.poor_fit_since_t = None, None, None, None
         if s.edge is None:
             return self._start(e)
         proj = self.graph.project(s.edge, e.x_m, e.y_m)
@@ -125,6 +135,24 @@ class OnlineMatcher:
         if s.region is not None:
             return self._in_region(e, proj)
         return self._on_road(e, proj)
+
+    def _jumped(self, e: FusedEstimate) -> bool:
+        """The estimate moved farther than its speed explains since the last update, by
+        ``jump_m`` or 3 tracking sigmas (before or after the move, the larger): the filter
+        jumped to a re-acquired fix, and the road it was matched to says nothing of where it
+        is now. Kept, a position re-acquired 2 m from the truth was matched to a road 15 m
+        away, and the map feedback pulled it there (Monaco 546 of the tune split: 1.9 ->
+        1.5x raw GPS). A correction within 3 sigma of the estimate before it is no jump: the
+        first fix after a 30 s gap moved one 16 m, and a start-up there took the wrong road
+        of a junction the region had right (Monaco 291). Tune split, 600 drives: one drive
+        better, none worse by more than 2 %."""
+        last = self.state.last_estimate
+        if last is None:
+            return False
+        t, x, y, sigma_m = last
+        moved_m = math.hypot(e.x_m - x, e.y_m - y)
+        return moved_m - abs(e.speed_mps) * max(e.t - t, 0.0) > \
+            max(self.config.jump_m, 3.0 * max(sigma_m, e.tracking_sigma_m))
 
     def _start(self, e: FusedEstimate) -> MatchedPosition:
         """Start-up and re-initialisation: the best nearby edge by distance and heading."""

@@ -89,11 +89,11 @@ def test_initializing_then_startup_picks_road_by_heading() -> None:
 def test_off_road_after_a_while_then_back() -> None:
     matcher = OnlineMatcher(cross_graph())
     matcher.update(estimate(0.0, 0.0, -50.0, 0.0))
-    states = [matcher.update(estimate(0.1 * k, 60.0, -60.0, 0.0, speed=1.0)).state
-              for k in range(1, 60)]
+    states = [matcher.update(estimate(8.0 + 0.1 * k, 60.0, -60.0, 0.0)).state
+              for k in range(1, 60)]  # 60 m off, 8 s later: where its speed could take it
     assert states[0] == MatchState.ON_ROAD  # not at once
     assert states[-1] == MatchState.OFF_ROAD
-    back = matcher.update(estimate(7.0, 0.5, -40.0, 0.0))
+    back = matcher.update(estimate(15.0, 0.5, -40.0, 0.0))
     assert back.state == MatchState.ON_ROAD and edge_of(back) == (3, 0)
 
 
@@ -219,3 +219,30 @@ def test_a_road_no_hypothesis_leads_to_is_found_again_soon() -> None:
     assert matched[-50][0] == (5, 6)  # 6 m off: within its sigma, no reason to doubt yet
     assert matched[40][0] == (1, 2)
     assert max(error for _, error in matched.values()) < 40.0
+
+
+def _two_parallel_roads() -> RoadGraph:
+    """Two two-way roads running north, 300 m long, 20 m apart (x = 0 and x = 20)."""
+    g = nx.MultiDiGraph()
+    pos = {0: (0.0, -150.0), 1: (0.0, 150.0), 2: (20.0, -150.0), 3: (20.0, 150.0)}
+    for n, (dx, dy) in pos.items():
+        g.add_node(n, x=X0 + dx, y=Y0 + dy)
+    for u, v in ((0, 1), (2, 3)):
+        g.add_edge(u, v, name=f"road{u}")
+        g.add_edge(v, u, name=f"road{u}")
+    return RoadGraph.from_networkx(g, FRAME)
+
+
+@pytest.mark.parametrize(("sigma_before_m", "restarts"), [(3.0, True), (8.0, False)])
+def test_an_estimate_that_jumps_to_a_road_nearby_is_matched_there_at_once(
+        sigma_before_m: float, restarts: bool) -> None:
+    """A re-acquired fix moves the estimate 20 m across, onto the parallel road, farther than
+    its speed and 3 sigma explain: the road it was on says nothing of where it is now, and the
+    matcher starts up again at once (not after ``poor_fit_after_s``). A correction of that
+    size by an estimate that was that unsure (3 x 8 m) is no jump: the road is kept."""
+    matcher = OnlineMatcher(_two_parallel_roads())
+    for k in range(20):  # north along x = 0 at 8 m/s, 10 Hz
+        p = matcher.update(estimate(0.1 * k, 0.0, -100.0 + 0.8 * k, 0.0, sigma_m=sigma_before_m))
+    assert edge_of(p) == (0, 1)
+    jumped = matcher.update(estimate(2.0, 20.5, -84.0, 0.0, sigma_m=3.0))
+    assert edge_of(jumped) == ((2, 3) if restarts else (0, 1))
