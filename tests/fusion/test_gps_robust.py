@@ -333,6 +333,44 @@ def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
     assert all(err < 4.0 for _, err, _ in back), back  # 4 sigma of the fixes
 
 
+def _road_across_and_road_50_m_east(x_m: float, y_m: float, heading_rad: float,
+                                    radius_m: float, max_bearing_diff_rad: float) -> float:
+    """A map of two roads: one east-west where the car stops (north 300 m), one north-south
+    50 m east (the car's own road is missing)."""
+    roads = ((abs(y_m - 300.0), math.pi / 2.0), (abs(x_m - 50.0), 0.0))
+    return min([min(d, radius_m) for d, bearing in roads
+                if abs(math.remainder(heading_rad - bearing, math.pi)) <= max_bearing_diff_rad],
+               default=radius_m)
+
+
+def test_a_car_standing_on_a_road_across_its_heading_does_not_follow_a_run_onto_another(
+        ) -> None:
+    """The car drives north 300 m and stops on an east-west road (stopped mid-turn: its
+    heading is not the road's); a non-line-of-sight run then puts the fixes 50 m east, on a
+    north-south road. Standing, any road counts as the estimate's: it is on one, and the run
+    is refused as a jump, not followed because the map seemed to prefer it."""
+    rng = np.random.default_rng(3)
+    packets: list[Packet] = []
+    for k in range(10_000):  # 100 s: 10 s still, 30 s north at 10 m/s, 60 s still
+        t = k / 100.0
+        speed = SPEED_MPS if STILL_S < t <= STILL_S + 30.0 else 0.0
+        north = min(_north_m(t), 300.0)
+        packets.append(ImuSample(t, yaw_rate_rps=GYRO_BIAS_RPS + rng.normal(0.0, 0.002)))
+        if k % 10 == 0:
+            packets.append(OdometerSample(t, speed_mps=speed))
+        if k % 100 == 0:
+            east = 50.0 if 60.0 <= t < 90.0 else 0.0
+            lon, lat = FRAME.to_wgs84(east + rng.normal(0.0, 1.0), north + rng.normal(0.0, 1.0))
+            packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0))
+    road = RoadFilter(FusionConfig(), FRAME, _road_across_and_road_50_m_east)
+    during = []
+    for p in packets:
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and e.gps is not None and 60.0 <= p.t < 90.0:
+                during.append((p.t, math.hypot(e.x_m, e.y_m - 300.0), e.gps.reason))
+    assert all(err < 10.0 for _, err, _ in during), during
+
+
 def test_the_gps_bias_states_stay_within_their_bound() -> None:
     """A followed 50 m jump is position, not bias: the bias states never hold more than
     ``gps_bias_max_sigmas`` of their steady sigma."""

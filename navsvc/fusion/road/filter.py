@@ -931,15 +931,22 @@ class RoadFilter:
         the jumped fixes' (the estimate moved by the run's mean innovation). A start inside a
         non-line-of-sight run settles on fixes off the roads; when the true fixes return,
         they are the "jump". Followed once, after ``jump_map_after_s``, when the estimate's
-        track lies ``jump_map_track_off_m`` (rms) from any road along its heading and
-        ``jump_map_ratio`` times farther than the jumped one."""
+        track lies ``jump_map_track_off_m`` (rms) from any road along its heading (any
+        road at all while the car stands: stopped mid-turn or at a kerb, its heading need not
+        lie along the road) and ``jump_map_ratio`` times farther than the jumped one. Tune
+        split, 600 drives: mean log fused/raw -0.5 % (3 drives better, none worse by more
+        than 2 %), drives with a matched error over 50 m 13 -> 12; a car standing 5 m from
+        its road had followed a run 60 m off onto another and refused the true fixes for
+        24 s (Monaco 511: 0.65 -> 0.12x raw GPS)."""
         s, cfg = self.state, self.config
         if self.road_distance is None or s.jump_since_t is None:
             return False
         n, sum_e, sum_n, track_sq, jump_sq = s.jump_fit
         n, sum_e, sum_n = n + 1, sum_e + float(innovation[0]), sum_n + float(innovation[1])
         x, y, heading = float(s.x[X_M]), float(s.x[Y_M]), float(s.x[HEADING])
-        args = (heading, cfg.road_fit_radius_m, cfg.road_fit_max_bearing_rad)
+        standing = s.x[SPEED] < 1.0
+        args = (heading, cfg.road_fit_radius_m,
+                math.pi if standing else cfg.road_fit_max_bearing_rad)
         track_sq += self.road_distance(x, y, *args) ** 2
         jump_sq += self.road_distance(x + sum_e / n, y + sum_n / n, *args) ** 2
         s.jump_fit = (n, sum_e, sum_n, track_sq, jump_sq)
