@@ -123,7 +123,7 @@ class OnlineMatcher:
         jumped = self._jumped(e)
         s.last_estimate = (e.t, e.x_m, e.y_m, e.tracking_sigma_m)
         if jumped:
-            s.edge, s.region, s.far_since_t, s.poor_fit_since_t = None, None, None, None
+            return self._start_again(e)
         if s.edge is None:
             return self._start(e)
         proj = self.graph.project(s.edge, e.x_m, e.y_m)
@@ -154,6 +154,12 @@ class OnlineMatcher:
         return moved_m - abs(e.speed_mps) * max(e.t - t, 0.0) > \
             max(self.config.jump_m, 3.0 * max(sigma_m, e.tracking_sigma_m))
 
+    def _start_again(self, e: FusedEstimate) -> MatchedPosition:
+        """Forget the road and its timers, and start up where the estimate is now."""
+        s = self.state
+        s.edge, s.region, s.far_since_t, s.poor_fit_since_t = None, None, None, None
+        return self._start(e)
+
     def _start(self, e: FusedEstimate) -> MatchedPosition:
         """Start-up and re-initialisation: the best nearby edge by distance and heading."""
         c, s = self.config, self.state
@@ -177,8 +183,7 @@ class OnlineMatcher:
         if proj.distance_m > c.startup_radius_m[1]:  # the estimate jumped (re-acquired GPS)
             # farther than start-up would look: no road this far off is still the one driven
             # (a GPS-only drive reported "on road" 1.6 km from it for a second)
-            s.edge, s.region, s.far_since_t, s.poor_fit_since_t = None, None, None, None
-            return self._start(e)
+            return self._start_again(e)
         far = proj.distance_m > max(c.off_road_distance_m, 4.0 * e.tracking_sigma_m)
         s.far_since_t = (s.far_since_t if s.far_since_t is not None else e.t) if far else None
         against = e.speed_mps >= c.min_speed_for_heading_mps and s.region is None and \

@@ -63,11 +63,16 @@ def _drive(duration_s: float, jumps: list[tuple[float, float, float]],
     return packets
 
 
-def _north_road_distance(x_m: float, y_m: float, heading_rad: float, radius_m: float,
-                         max_bearing_diff_rad: float) -> float:
-    """The map of the drive: one road, north-south through the origin."""
-    along = abs(math.remainder(heading_rad, math.pi)) <= max_bearing_diff_rad
-    return min(abs(x_m), radius_m) if along else radius_m
+def _north_road(east_m: float) -> RoadDistance:
+    """A map of one road, north-south through ``east_m``."""
+    def distance(x_m: float, y_m: float, heading_rad: float, radius_m: float,
+                 max_bearing_diff_rad: float) -> float:
+        along = abs(math.remainder(heading_rad, math.pi)) <= max_bearing_diff_rad
+        return min(abs(x_m - east_m), radius_m) if along else radius_m
+    return distance
+
+
+_north_road_distance = _north_road(0.0)  # the map of the drive
 
 
 def _run(packets: list[Packet], road_distance: RoadDistance | None = None
@@ -333,13 +338,6 @@ def test_a_followed_jump_that_jumps_back_is_left_at_once() -> None:
     assert all(err < 4.0 for _, err, _ in back), back  # 4 sigma of the fixes
 
 
-def _road_50_m_east(x_m: float, y_m: float, heading_rad: float, radius_m: float,
-                    max_bearing_diff_rad: float) -> float:
-    """A map that lacks the road driven: its one road runs north-south 50 m east."""
-    along = abs(math.remainder(heading_rad, math.pi)) <= max_bearing_diff_rad
-    return min(abs(x_m - 50.0), radius_m) if along else radius_m
-
-
 def test_a_jump_the_map_had_followed_that_jumps_back_is_left_at_once() -> None:
     """The car drives a road the map lacks; a non-line-of-sight run puts the fixes 50 m
     east, on the map's road, and the filter follows it at once (its estimate off every road
@@ -347,7 +345,8 @@ def test_a_jump_the_map_had_followed_that_jumps_back_is_left_at_once() -> None:
     offset: the filter is back on them at that fix, not refusing them as a jump from the
     run's track for ``max_jump_s``."""
     start_t, back_t = STILL_S + 20.0, STILL_S + 40.0
-    _, fixes = _run(_drive(back_t + 20.0, [(start_t, back_t, 50.0)]), _road_50_m_east)
+    _, fixes = _run(_drive(back_t + 20.0, [(start_t, back_t, 50.0)]),
+                    _north_road(50.0))  # a map that lacks the road driven
     assert all(err > 40.0 for t, err, _ in fixes if start_t + 1.0 <= t < back_t)
     back = [f for f in fixes if f[0] >= back_t]
     assert back[0][2] == "re-acquired: the fixes jumped back"
