@@ -189,14 +189,23 @@ def _cards(rows: list[dict[str, Any]]) -> list[Scorecard]:
     return [Scorecard(**{k: r[k] for k in fields}) for r in rows]
 
 
+def _values(rows: list[dict[str, Any]], key: str) -> list[float]:
+    """The scores of ``key`` there are: an infinite one (no output) counts, None or NaN not."""
+    return [r[key] for r in rows if r[key] is not None and not math.isnan(r[key])]
+
+
 def _median(rows: list[dict[str, Any]], key: str) -> float:
-    values = [r[key] for r in rows if r[key] is not None and math.isfinite(r[key])]
+    values = _values(rows, key)
     return statistics.median(values) if values else math.nan
 
 
 def _worst(rows: list[dict[str, Any]], key: str) -> float:
-    values = [r[key] for r in rows if r[key] is not None and math.isfinite(r[key])]
+    values = _values(rows, key)
     return max(values) if values else math.nan
+
+
+def _no_output(rows: list[dict[str, Any]]) -> int:
+    return sum(r["output_share"] == 0.0 for r in rows)
 
 
 def _pct(value: float) -> float:
@@ -214,6 +223,9 @@ def _print_targets(rows: list[dict[str, Any]], title: str) -> None:
                   "(no target; worst = lowest)", ""])
     table.append(["mean NEES per dof", _median(rows, "mean_nees_per_dof"),
                   _worst(rows, "mean_nees_per_dof"), "(1 when consistent)", ""])
+    table.append(["output share %", _pct(_median(rows, "output_share")),
+                  _pct(min(r["output_share"] for r in rows)),
+                  f"(no target; worst = lowest; {_no_output(rows)} drives without output)", ""])
     print_table(title, ["score", "median", "worst drive", "target", "met"], table)
 
 
@@ -241,10 +253,11 @@ def _print_configs(rows: list[dict[str, Any]],
                       _worst(g, "fused_to_raw_ratio"), _median(g, "outage_drift_pct"),
                       _worst(g, "outage_drift_pct"), _pct(_median(g, "circle_share")),
                       _worst(g, "max_matched_error_with_gps_m"),
-                      _pct(_median(g, "right_road_share")), f"{met}/4"])
+                      _pct(_median(g, "right_road_share")), _no_output(g), f"{met}/4"])
     print_table("Every configuration (medians; max where said)",
                 ["sensors", "mode", "ratio", "ratio max", "drift %", "drift max %",
-                 "in 2.45σ %", "max err w/ GPS m", "right road %", "targets met"], table)
+                 "in 2.45σ %", "max err w/ GPS m", "right road %", "no output", "targets met"],
+                table)
 
 
 def main() -> None:

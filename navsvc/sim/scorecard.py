@@ -12,7 +12,9 @@ On top of :func:`navsvc.sim.evaluate.evaluate` (position errors, outage drift, r
   normalised error over 2 (1 when consistent);
 * the largest error of the output (matched) position while GPS is present: at epochs with a
   fix in the second before;
-* the share of epochs on the right road.
+* the share of epochs on the right road;
+* the share of the drive's seconds that had an estimate at all (a drive with none scores an
+  infinite ratio: it fails, where a NaN had dropped it from the medians unseen).
 
 Inputs are wire records, as for ``evaluate``.
 """
@@ -45,6 +47,7 @@ class Scorecard:
     right_road_share: float | None
     fused_rms_m: float
     raw_gps_rms_m: float
+    output_share: float  # of the drive's seconds, those with an estimate
 
 
 @dataclass(frozen=True)
@@ -103,6 +106,14 @@ def _truth_span(drive: list[dict[str, Any]]) -> tuple[float, float]:
     return min(t), max(t)
 
 
+def output_share(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]) -> float:
+    """The share of the drive's whole seconds in which the run gave an estimate."""
+    t0, t1 = _truth_span(drive)
+    seconds = max(int(math.ceil(t1 - t0)), 1)
+    had = {min(int(r["t"] - t0), seconds - 1) for r in estimates if t0 <= r["t"] <= t1}
+    return len(had) / seconds
+
+
 def max_error_with_gps_m(drive: list[dict[str, Any]],
                          estimates: list[dict[str, Any]]) -> float | None:
     """The largest matched-position error at epochs with a GPS fix in the second before."""
@@ -121,13 +132,14 @@ def score(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
     e = evaluate(drive, estimates)
     outage = next((o for o in e.outages if o.start_s <= outage_start_s + 1.0 <= o.end_s), None)
     circle, nees = consistency(drive, estimates)
+    share = output_share(drive, estimates)
     return Scorecard(
-        fused_to_raw_ratio=e.fused_to_raw_ratio,
+        fused_to_raw_ratio=e.fused_to_raw_ratio if share > 0.0 else math.inf,
         outage_drift_pct=outage.drift_pct if outage else None,
         circle_share=circle, mean_nees_per_dof=nees,
         max_matched_error_with_gps_m=max_error_with_gps_m(drive, estimates),
         right_road_share=e.on_right_road_share,
-        fused_rms_m=e.fused.rms_m, raw_gps_rms_m=e.raw_gps.rms_m)
+        fused_rms_m=e.fused.rms_m, raw_gps_rms_m=e.raw_gps.rms_m, output_share=share)
 
 
 def _worst(values: list[float], bounds: tuple[float, float]) -> float:
@@ -139,11 +151,12 @@ def _worst(values: list[float], bounds: tuple[float, float]) -> float:
 
 
 def check(cards: list[Scorecard]) -> list[tuple[str, float, float, str, bool]]:
-    """Per target: (score, median, worst drive, target text, met)."""
+    """Per target: (score, median, worst drive, target text, met). A drive without a score
+    (None, NaN) has nothing to count; an infinite one (no output at all) counts, and fails."""
     out = []
     for target in TARGETS:
         values = [v for c in cards if (v := getattr(c, target.score)) is not None
-                  and math.isfinite(v)]
+                  and not math.isnan(v)]
         if not values:
             out.append((target.score, math.nan, math.nan, target.text, False))
             continue

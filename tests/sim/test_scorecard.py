@@ -8,7 +8,14 @@ from typing import Any
 
 import pytest
 
-from navsvc.sim.scorecard import Scorecard, check, consistency, max_error_with_gps_m
+from navsvc.sim.scorecard import (
+    Scorecard,
+    check,
+    consistency,
+    max_error_with_gps_m,
+    output_share,
+    score,
+)
 from roadgraph import LocalFrame
 
 LON, LAT = 7.42, 43.73
@@ -21,7 +28,7 @@ def _at(t: float, dx: float = 0.0, **extra: Any) -> dict[str, Any]:
     return {"t": t, "lat": lat, "lon": lon, **extra}
 
 
-DRIVE = [_at(float(t), kind="truth") for t in range(11)] + \
+DRIVE = [_at(float(t), kind="truth", heading_deg=90.0, u=1, v=2) for t in range(11)] + \
     [_at(float(t), kind="gps") for t in (0, 1, 2, 3, 8, 9, 10)]  # no GPS from 3 to 8
 
 
@@ -45,7 +52,7 @@ def test_max_error_counts_only_epochs_with_a_fix_in_the_second_before() -> None:
 
 
 def _card(ratio: float, drift: float, circle: float, err: float) -> Scorecard:
-    return Scorecard(ratio, drift, circle, 1.0, err, 1.0, 1.0, 1.0)
+    return Scorecard(ratio, drift, circle, 1.0, err, 1.0, 1.0, 1.0, 1.0)
 
 
 def test_targets_met_and_missed() -> None:
@@ -59,5 +66,19 @@ def test_targets_met_and_missed() -> None:
 
 
 def test_no_scores_is_not_a_pass() -> None:
-    card = Scorecard(math.nan, None, None, None, None, None, math.nan, math.nan)
+    card = Scorecard(math.nan, None, None, None, None, None, math.nan, math.nan, 1.0)
     assert not any(met for *_, met in check([card]))
+
+
+def test_output_share_counts_the_seconds_with_an_estimate() -> None:
+    estimates = [_estimate(t, 1.0, 1.0) for t in (2.0, 2.5, 3.2, 7.9)]
+    assert output_share(DRIVE, estimates) == pytest.approx(3 / 10)
+    assert output_share(DRIVE, []) == 0.0
+
+
+def test_a_drive_without_output_fails_the_ratio_instead_of_dropping_out() -> None:
+    silent = score(DRIVE, [], outage_start_s=3.0)
+    assert silent.output_share == 0.0 and silent.fused_to_raw_ratio == math.inf
+    verdicts = {name: (worst, met) for name, _, worst, _, met in
+                check([_card(0.5, 1.5, 0.95, 20.0), silent])}
+    assert verdicts["fused_to_raw_ratio"] == (math.inf, False)
