@@ -12,8 +12,11 @@ vehicle through GPS outages.
 
 Alignment: roll and pitch from the mean specific force while the vehicle stands still (coarse
 levelling; level is assumed if it never stood still), heading from the GPS course once it moves
-faster than ``align_min_speed_mps``. Until then no estimate is produced. IMU rates are held
-over each sample interval (rectangular increments); the IMU mounting rotation is an option.
+faster than ``align_min_speed_mps``; from a receiver that sends no course, from the fixes over
+a straight baseline driven, as the road filter starts (:func:`navsvc.fusion.gnss.fit_track`
+with an odometer, else the bearing between the baseline's ends). Until then no estimate is
+produced. IMU rates are held over each sample interval (rectangular increments); the IMU
+mounting rotation is an option.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from navsvc.errors import ConfigError, PacketError, RejectReason
 from navsvc.fusion import odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
-from navsvc.fusion.gnss import MapSeenError, RoadDistance, gps_problem, gps_sigma_m
+from navsvc.fusion.gnss import MapSeenError, RoadDistance, fit_track, gps_problem, gps_sigma_m
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
 from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition, GnssVelocity, Rest
@@ -37,10 +40,12 @@ from navsvc.fusion.ins.mechanisation import MAX_ACCEL_MPS2, MAX_RATE_RPS, Mechan
 from navsvc.fusion.ins.total_state import ins_filter
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
+from roadgraph.geometry import bearing_rad
 
 FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 NO_HEIGHT_SIGMA_M = 50.0
 ODO_SCALE_GAIN = 0.05
+MIN_BASELINE_HEADING_SIGMA_RAD = math.radians(1.0)  # a road is never driven quite straight
 
 
 @dataclass(frozen=True)
@@ -90,6 +95,12 @@ class StrapdownState:
     last_fix_t: float | None = None
     gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
     gps_unseen_var_m2: float = 0.0  # what of it the fixes' sigma does not hold (reported)
+    # alignment without a GPS course: the fixes since the baseline began (t, east, north,
+    # odometer distance), and the distance driven and the turn made since then
+    baseline: tuple[tuple[float, float, float, float], ...] = ()
+    travelled_m: float = 0.0
+    turned_rad: float = 0.0
+    last_odo_t: float | None = None
 
 
 class StrapdownFilter:
@@ -164,8 +175,11 @@ class StrapdownFilter:
                               f"deg/s, |accel| <= {MAX_ACCEL_MPS2:g} m/s^2)")
         if self._predict_to(p.t):
             self._constrain(p.t)
-        elif s.ins is None and s.standing:
-            s.still_f.append(accel)
+        elif s.ins is None:
+            if s.standing:
+                s.still_f.append(accel)
+            if s.t is not None and p.t > s.t:
+                s.turned_rad += float(gyro[2]) * (p.t - s.t)
         s.rates, s.t = (gyro, accel), p.t
         if s.ins is not None and s.last_output_t is not None and \
                 p.t - s.last_output_t >= self.config.output_interval_s:
@@ -212,8 +226,12 @@ class StrapdownFilter:
         if speed is None:
             return
         s.odo_speed = speed
+        s.standing = speed < self.options.still_speed_mps  # the wheels say so best
         speed *= s.odo_scale
         if s.ins is None:
+            if s.last_odo_t is not None and p.t > s.last_odo_t:
+                s.travelled_m += speed * (p.t - s.last_odo_t)
+            s.last_odo_t = p.t
             return
         sigma = np.full(3, cfg.odometer_sigma_mps)
         if speed < 0.05:
@@ -261,7 +279,7 @@ class StrapdownFilter:
             return [self._estimate()] if s.ins is not None else []
         if self.frame is None:
             self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
-        if fix.speed_mps is not None:
+        if fix.speed_mps is not None and s.odo_speed is None:
             s.standing = fix.speed_mps < self.options.still_speed_mps
         if s.ins is None:
             self._try_align(fix)
@@ -301,30 +319,83 @@ class StrapdownFilter:
                                                             cfg.gps_map_max_sigma_m)
 
     def _try_align(self, fix: GpsFix) -> None:
-        """Start the INS once the GPS course gives a heading."""
+        """Start the INS once a heading is known: from the GPS course, else from the fixes
+        over a baseline (:meth:`_baseline_heading`)."""
         o, s = self.options, self.state
-        if fix.speed_mps is None or fix.heading_rad is None or \
-                fix.speed_mps < o.align_min_speed_mps:
+        if fix.speed_mps is not None and fix.heading_rad is not None and \
+                fix.speed_mps >= o.align_min_speed_mps:
+            self._align(fix, (fix.heading_rad, o.initial_sigmas[3]),
+                        (fix.speed_mps, o.initial_sigmas[1]), "heading from the GPS course")
+            return
+        found = self._baseline_heading(fix)
+        if found is None:
             s.gps = GpsUsage(False, 0.0, "aligning: waiting to move for a heading")
             return
+        heading, speed = found
+        self._align(fix, heading, speed, "heading from the fixes' track")
+
+    def _baseline_heading(self, fix: GpsFix) -> tuple[tuple[float, float],
+                                                        tuple[float, float]] | None:
+        """(heading, sigma) and (speed, sigma) from the fixes since the baseline began, once
+        it is ``initial_heading_min_move_m`` and ``initial_heading_min_move_sigmas`` of the
+        fixes' spread long; the baseline starts again at this fix while the car stands, when
+        it is older than ``initial_heading_max_baseline_s``, turned more than
+        ``initial_heading_max_turn_rad`` (gyro) or, with an odometer, when the fixes do not
+        lie on the line it drove (a jump among them)."""
+        s, cfg = self.state, self.config
+        assert self.frame is not None
+        east, north = self.frame.to_local(fix.lon_deg, fix.lat_deg)
+        sigma = self._sigma_m(fix)
+        s.baseline = (*s.baseline, (fix.t, east, north, s.travelled_m))
+        t0, e0, n0, _ = s.baseline[0]
+        with_odometer = s.odo_speed is not None
+        fit = fit_track(s.baseline, sigma) if with_odometer else None
+        standing = s.standing and (with_odometer or fix.speed_mps is not None)  # else unknown
+        if standing or fix.t - t0 > cfg.initial_heading_max_baseline_s or \
+                abs(s.turned_rad) > cfg.initial_heading_max_turn_rad or \
+                (fit is not None and not fit.agrees):
+            s.baseline, s.travelled_m, s.turned_rad = ((fix.t, east, north, 0.0),), 0.0, 0.0
+            return None
+        spread = math.sqrt(2.0) * sigma
+        min_move_m = max(cfg.initial_heading_min_move_m,
+                         cfg.initial_heading_min_move_sigmas * spread)
+        moved = math.hypot(east - e0, north - n0)
+        if fit is not None and s.travelled_m >= min_move_m:
+            assert s.odo_speed is not None
+            return ((fit.heading_rad, max(math.sqrt(fit.variance_rad2),
+                                          MIN_BASELINE_HEADING_SIGMA_RAD)),
+                    (s.odo_speed * s.odo_scale, self.options.initial_sigmas[1]))
+        if fit is None and moved >= min_move_m:
+            dt = fix.t - t0
+            return ((bearing_rad(e0, n0, east, north), max(spread / moved,
+                                                           MIN_BASELINE_HEADING_SIGMA_RAD)),
+                    (moved / dt, max(spread / dt, self.options.initial_sigmas[1])))
+        return None
+
+    def _align(self, fix: GpsFix, heading: tuple[float, float], speed: tuple[float, float],
+               how: str) -> None:
+        """The INS starts at the fix, level from the IMU, with this heading and speed (each a
+        value and its sigma)."""
+        o, s = self.options, self.state
         roll, pitch = level_from_accel(np.mean(s.still_f, axis=0)) if s.still_f \
             else (0.0, 0.0)
-        yaw = fix.heading_rad
+        yaw, yaw_sigma = heading
         sigma = self._sigma_m(fix)
         sd = o.initial_sigmas
         p0 = np.diag(np.array([max(sd[0], sigma)] * 2 + [2.0 * max(sd[0], sigma)]
-                              + [sd[1]] * 3 + [sd[2], sd[2], sd[3]] + [sd[4]] * 3
+                              + [speed[1]] * 3 + [sd[2], sd[2], yaw_sigma] + [sd[4]] * 3
                               + [sd[5]] * 3 + [sd[6]] * 6) ** 2)
         s.height_m = fix.alt_m if fix.alt_m is not None else 0.0
         state = NavState(fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg),
                          s.height_m,
-                         fix.speed_mps * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
+                         speed[0] * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
                          euler_to_dcm(roll, pitch, yaw))
         s.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
                            o.mechanisation)
         s.still_f.clear()  # levelled
+        s.baseline = ()
         s.last_output_t = fix.t
-        s.gps = GpsUsage(True, 1.0, "aligned: level from the IMU, heading from GPS")
+        s.gps = GpsUsage(True, 1.0, f"aligned: level from the IMU, {how}")
 
     def _estimate(self) -> FusedEstimate:
         ins, rates = self.state.ins, self.state.rates
