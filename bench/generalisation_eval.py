@@ -172,8 +172,7 @@ def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, b
         started = time.perf_counter()
         kinds = set(SENSOR_KINDS[sensors.value]) | {"truth"}
         fusion = FusionConfig(sensors=sensors, gps_mode=mode, **overrides)  # type: ignore[arg-type]
-        feedback_here = feedback if feedback is None or fusion.profile.map_feedback else None
-        session = VehicleSession(SessionConfig(fusion, map_feedback=feedback_here), graph)
+        session = VehicleSession(SessionConfig(fusion, map_feedback=feedback), graph)
         result = session.add_records([r for r in drive if r["kind"] in kinds])
         card = score(drive, [position_json(p, graph.frame) for p in result.positions],
                      outage_start)

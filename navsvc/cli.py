@@ -276,8 +276,7 @@ def _add_session_options(parser: argparse.ArgumentParser, epilog: str | None = N
     parser.add_argument("--map-feedback", action=argparse.BooleanOptionalAction,
                         default=None,
                         help="feed confident matches back into the filter as a road "
-                        "constraint (bounds drift in GPS outages; default: on wherever the "
-                        "sensor configuration allows it, all but strapdown)")
+                        "constraint (bounds drift in GPS outages; default: on)")
     parser.add_argument("--profile", type=Path, metavar="PROFILE.json",
                         help="tuned parameters for the session (from `navsvc tune`)")
     parser.add_argument("--json", action="store_true", help="print a summary as JSON")

@@ -82,7 +82,7 @@ class SessionConfig:
     matcher: MatcherConfig = MatcherConfig()
     strapdown: StrapdownOptions = StrapdownOptions()  # the INS, for sensors "strapdown"
     map_feedback: bool | None = None  # matched road → pseudo-measurement into the filter;
-    # None: where the sensor configuration allows it (every road-filter configuration)
+    # None: the default, on
     match_interval_s: float = 0.1  # the matcher also steps between outputs (short edges)
     feedback_sigma_across_m: float = 2.0
     feedback_sigma_heading_rad: float = math.radians(5.0)
@@ -95,9 +95,7 @@ class SessionConfig:
     @property
     def feedback(self) -> bool:
         """Whether the session feeds the matched road back (``map_feedback`` resolved)."""
-        if self.map_feedback is None:
-            return self.fusion.profile.map_feedback
-        return self.map_feedback
+        return self.map_feedback is not False
 
 
 @dataclass
@@ -180,9 +178,6 @@ class VehicleSession:
                  graph: RoadGraph | None = None) -> None:
         self.config = config
         self.graph = graph
-        if config.map_feedback and not config.fusion.profile.map_feedback:
-            raise ConfigError(f"map feedback is not available with "
-                              f"{config.fusion.sensors.value} yet")
         self.engine = FusionEngine(config.fusion, frame=graph.frame if graph else None,
                                    ins=config.strapdown,
                                    road_distance=graph.distance_to_road_m if graph else None)
@@ -445,8 +440,7 @@ class SessionOptions(BaseModel):
     fusion: GpsMode = Field(GpsMode.EKF, description="how GPS is fused: ekf, rules or fuzzy")
     map_feedback: bool | None = Field(
         None, description="feed confident matches back into the filter as a road constraint "
-        "(bounds drift in GPS outages); default: on wherever the sensor configuration allows "
-        "it (all but strapdown)")
+        "(bounds drift in GPS outages); default: on")
     ticks_per_m: float | None = Field(None, gt=0, le=10_000,
                                       description="odometer ticks per metre")
     wheelbase_m: float | None = Field(None, gt=0.5, le=20, description="for steering sensors")

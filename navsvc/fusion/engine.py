@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from navsvc.errors import ConfigError
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import RoadDistance
@@ -112,9 +111,6 @@ class FusionEngine:
         bearing ``road_bearing_rad`` and the heading follows it (:class:`RoadConstraint`);
         False when the gate refuses it. It cannot be replayed: the reorder window starts
         again after it."""
-        if not self.profile.map_feedback:
-            raise ConfigError(f"map feedback is not available with {self.profile.sensors.value}"
-                              " yet")
         applied = self.filter.correct(RoadConstraint(east_m, north_m, road_bearing_rad,
                                                      sigma_across_m, sigma_heading_rad))
         if applied:

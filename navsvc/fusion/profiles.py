@@ -12,7 +12,13 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition, GnssVelocity, Rest
+from navsvc.fusion.ins.measurements import (
+    AcrossRoad,
+    BodyVelocity,
+    GnssPosition,
+    GnssVelocity,
+    Rest,
+)
 from navsvc.fusion.road.measurements import (
     CourseAndSpeed,
     GpsPosition,
@@ -63,7 +69,6 @@ class Profile:
     speed_from_accel: bool = False  # speed integrates the forward accelerometer (configs 3, 4)
     turn_rate_tau_s: float | None = None  # Gauss-Markov turn rate unless the config sets one
     gps_alone: bool = False  # no dead reckoning: GPS course ungated, a slow fix is a stop
-    map_feedback: bool = True  # the session may feed the matched road back
 
     @property
     def gyro(self) -> bool:
@@ -90,7 +95,7 @@ PROFILES: dict[SensorConfig, Profile] = {p.sensors: p for p in (
                             "into dead reckoning, and gps_only has none",
             turn_rate_tau_s=3.0, gps_alone=True),
     Profile(SensorConfig.STRAPDOWN, FilterKind.INS, frozenset({"imu", "odometer", "gps"}),
-            frozenset({GnssPosition, GnssVelocity, BodyVelocity, Rest}), gps_modes=_EKF,
-            ekf_only_reason="strapdown fuses GPS in its error-state EKF: fusion must be ekf",
-            map_feedback=False),
+            frozenset({GnssPosition, GnssVelocity, BodyVelocity, Rest, AcrossRoad}),
+            gps_modes=_EKF,
+            ekf_only_reason="strapdown fuses GPS in its error-state EKF: fusion must be ekf"),
 )}

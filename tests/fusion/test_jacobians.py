@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from navsvc.fusion.ins import (
     EARTH_RATE_RPS,
+    AcrossRoad,
     BodyVelocity,
     GnssFix,
     GnssPosition,
@@ -140,7 +141,7 @@ def ins_measurements(s: NavState) -> list[object]:
                   np.array([3.0, 3.0, 6.0]))
     return [GnssPosition(fix), GnssVelocity(np.array([1.0, 2.0, 0.0]), (0, 1, 2), 0.5),
             BodyVelocity(np.array([10.0, 0.0, 0.0]), (0, 1, 2), np.full(3, 0.1)),
-            Rest(np.array([1e-3, -2e-3, 5e-4]), 1e-3, 0.1)]
+            Rest(np.array([1e-3, -2e-3, 5e-4]), 1e-3, 0.1), AcrossRoad(fix, 0.7, 5.0)]
 
 
 @settings(max_examples=60, deadline=None)
@@ -170,7 +171,9 @@ def test_ins_measurement_jacobians(s: NavState, lever: Array) -> None:
         ins.state = s
         # Rest leaves out how the earth's rate seen by the body turns with an attitude error
         # (at most EARTH_RATE_RPS per radian)
-        atol = 1.01 * EARTH_RATE_RPS if isinstance(model, Rest) else 1e-6
+        # AcrossRoad sums two of GnssPosition's rows: twice its tolerance
+        atol = 1.01 * EARTH_RATE_RPS if isinstance(model, Rest) else \
+            2e-6 if isinstance(model, AcrossRoad) else 1e-6
         np.testing.assert_allclose(H, numeric, rtol=1e-4, atol=atol,
                                    err_msg=type(model).__name__)
 

@@ -10,12 +10,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError
+from navsvc.fusion import FusionConfig, SensorConfig
 from navsvc.fusion.ins.strapdown import StrapdownFilter
+from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
+from navsvc.types import GpsFix, ImuSample
 from navsvc.wire.positions import position_json
-from roadgraph import RoadGraph
+from roadgraph import LocalFrame, RoadGraph
 
 
 @pytest.fixture(scope="module")
@@ -81,8 +84,29 @@ def test_strapdown_needs_the_6_axis_imu(sample_graph: RoadGraph) -> None:
 def test_strapdown_refuses_what_it_cannot_do() -> None:
     with pytest.raises(ConfigError, match="fusion must be ekf"):
         config_from_options({"sensors": "strapdown", "fusion": "rules"})
-    with pytest.raises(ConfigError, match="map feedback is not available"):
-        VehicleSession(config_from_options({"sensors": "strapdown", "map_feedback": True}))
+
+
+def test_map_feedback_holds_the_strapdown_across_its_road() -> None:
+    """The matched road, fed back, moves an INS 8 m off a north-south road onto it, across
+    the road only, and leaves it no surer across the road than the map is (the same road
+    again and again: its error does not average out)."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    lon, lat = frame.to_wgs84(8.0, 0.0)
+    still = ImuSample(0.0, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=(0.0, 0.0, 9.81))
+    ins.apply(still)
+    ins.apply(GpsFix(0.0, lat_deg=lat, lon_deg=lon, accuracy_m=10.0, speed_mps=10.0,
+                     heading_rad=0.0))
+    before = ins.estimate()
+    assert before is not None
+    road = RoadConstraint(0.0, before.y_m + 30.0, 0.0, 2.0, math.radians(5.0))
+    for _ in range(5):
+        assert ins.correct(road)
+    after = ins.estimate()
+    assert after is not None
+    assert abs(after.x_m) < 1.0  # across: onto the road
+    assert after.y_m == pytest.approx(before.y_m, abs=1.0)  # along: left alone
+    assert after.position_cov_m2[0, 0] >= 2.0 ** 2 * 0.99
 
 
 def test_imu_mounted_sideways_is_turned_back(drive: list[dict], sample_graph: RoadGraph) -> None:

@@ -2,13 +2,13 @@
 
 Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md), loosely coupled: GNSS position (with the
 antenna's lever arm) and velocity; body-frame velocity for wheel speed, the non-holonomic
-constraint and stops; the zero-rate update at rest. Each ``model(ins)`` gives
-``(z, h, H, R)`` (:data:`~navsvc.fusion.kalman.Linearised`) in the filter's own state: ``z`` is
-the residual (predicted less measured) and ``h = H dx`` its prediction from the estimated
-error ``dx``, so the update is the one Kalman update of :mod:`navsvc.fusion.kalman`. The
-residual and ``H`` come from the filter (:class:`.error_state.InsFilter` analytic,
-:class:`.total_state.DirectInsFilter` by central differences); a test checks the analytic
-``H`` against central differences of the residual.
+constraint and stops; the zero-rate update at rest; the matched road (map feedback). Each
+``model(ins)`` gives ``(z, h, H, R)`` (:data:`~navsvc.fusion.kalman.Linearised`) in the
+filter's own state: ``z`` is the residual (predicted less measured) and ``h = H dx`` its
+prediction from the estimated error ``dx``, so the update is the one Kalman update of
+:mod:`navsvc.fusion.kalman`. The residual and ``H`` come from the filter
+(:class:`.error_state.InsFilter` analytic, :class:`.total_state.DirectInsFilter` by central
+differences); a test checks the analytic ``H`` against central differences of the residual.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, ClassVar, Protocol
 import numpy as np
 
 from navsvc.fusion._jit import Array
-from navsvc.fusion.kalman import Linearised
+from navsvc.fusion.kalman import Linearised, no_surer_than
 
 if TYPE_CHECKING:
     from navsvc.fusion.ins.error_state import GnssFix, InsFilter
@@ -106,3 +106,24 @@ class Rest:
         R = np.diag([self.velocity_sigma_mps**2] * 3 + [self.gyro_sigma_rps**2] * 3)
         return _linearised(ins, y, H, R)
 
+
+
+@dataclass(frozen=True)
+class AcrossRoad:
+    """Map feedback: the position lies on the road through ``point`` with bearing
+    ``road_bearing_rad`` (clockwise from north), within ``sigma_m`` across it; along it the
+    map says nothing. The position residual at that point, projected on the road's normal;
+    its variance raised so that the update leaves the position no surer across the road than
+    the map is (the same road again and again: its error does not average out)."""
+
+    point: GnssFix  # its sigmas unused
+    road_bearing_rad: float
+    sigma_m: float
+    gate_dof: ClassVar[int] = 1
+    soft_gate: ClassVar[bool] = False
+
+    def model(self, ins: InsFilter) -> Linearised:
+        y, H = ins.position_residual(self.point)
+        normal_ne = np.array([-np.sin(self.road_bearing_rad), np.cos(self.road_bearing_rad)])
+        y1, H1 = np.array([normal_ne @ y[:2]]), (normal_ne @ H[:2])[None, :]
+        return _linearised(ins, y1, H1, no_surer_than(ins.P, H1, np.array([[self.sigma_m ** 2]])))

@@ -35,9 +35,16 @@ from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import MapSeenError, RoadDistance, fit_track, gps_problem, gps_sigma_m
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
-from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition, GnssVelocity, Rest
+from navsvc.fusion.ins.measurements import (
+    AcrossRoad,
+    BodyVelocity,
+    GnssPosition,
+    GnssVelocity,
+    Rest,
+)
 from navsvc.fusion.ins.mechanisation import MAX_ACCEL_MPS2, MAX_RATE_RPS, Mechanisation, NavState
 from navsvc.fusion.ins.total_state import ins_filter
+from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
 from roadgraph.geometry import bearing_rad
@@ -146,8 +153,17 @@ class StrapdownFilter:
         return None if self.state.ins is None else self._estimate()
 
     def correct(self, m: object) -> bool:
-        """External measurements (map feedback) are not taken yet."""
-        return False
+        """Map feedback (a :class:`RoadConstraint`): the position across the road
+        (:class:`AcrossRoad`); the road's bearing is not taken as the heading (the INS's
+        attitude comes from its own sensors). False when the gate refuses it, or before
+        alignment."""
+        s = self.state
+        if not isinstance(m, RoadConstraint) or s.ins is None or self.frame is None:
+            return False
+        lon, lat = self.frame.to_wgs84(m.east_m, m.north_m)
+        n = s.ins.output()
+        point = GnssFix(n.t, math.radians(lat), math.radians(lon), n.h_m, np.ones(3))
+        return s.ins.update(AcrossRoad(point, m.road_bearing_rad, m.sigma_across_m))
 
     def apply(self, packet: Packet) -> list[FusedEstimate]:
         """One packet, not older than the state; the estimates it produced."""
