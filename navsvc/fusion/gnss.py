@@ -17,6 +17,7 @@ from navsvc.types import GpsFix, GpsFixType
 # A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
 # fix in a street canyon is off by tens of metres as often as not).
 _FIX_SIGMA_M = {GpsFixType.RTK: 0.05, GpsFixType.DGPS: 1.0}
+MAX_PLAUSIBLE_SPEED_MPS = 70.0  # faster fixes (or wheels) are an outlier, not a car
 
 
 def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:

@@ -16,7 +16,7 @@ from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.session import VehicleSession, config_from_options
 from navsvc.sim.evaluate import evaluate
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
-from navsvc.types import GpsFix, ImuSample
+from navsvc.types import GpsFix, ImuSample, OdometerSample
 from navsvc.wire.positions import position_json
 from roadgraph import LocalFrame, RoadGraph
 
@@ -84,6 +84,23 @@ def test_strapdown_needs_the_6_axis_imu(sample_graph: RoadGraph) -> None:
 def test_strapdown_refuses_what_it_cannot_do() -> None:
     with pytest.raises(ConfigError, match="fusion must be ekf"):
         config_from_options({"sensors": "strapdown", "fusion": "rules"})
+
+
+def test_no_alignment_from_implausible_wheels_or_fixes() -> None:
+    """Fixes without a course 100 m apart while the wheels claim 1 km in a second, or two
+    fixes at one instant 100 m apart without wheels: no car moves so, and no heading comes of
+    it (an infinite speed had reached the INS's covariance as NaN)."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    for with_wheels in (True, False):
+        ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+        ins.apply(ImuSample(0.0, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=(0.0, 0.0, 9.81)))
+        times = (0.0, 1.0) if with_wheels else (1.0, 1.0)
+        for k, t in enumerate(times):
+            if with_wheels:
+                ins.apply(OdometerSample(t, distance_m=1000.0 * t))
+            lon, lat = frame.to_wgs84(0.0, 100.0 * k)
+            ins.apply(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=2.0))
+        assert ins.ins is None
 
 
 def test_map_feedback_holds_the_strapdown_across_its_road() -> None:

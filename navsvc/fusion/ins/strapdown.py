@@ -32,7 +32,14 @@ from navsvc.errors import ConfigError, PacketError, RejectReason
 from navsvc.fusion import odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
-from navsvc.fusion.gnss import MapSeenError, RoadDistance, fit_track, gps_problem, gps_sigma_m
+from navsvc.fusion.gnss import (
+    MAX_PLAUSIBLE_SPEED_MPS,
+    MapSeenError,
+    RoadDistance,
+    fit_track,
+    gps_problem,
+    gps_sigma_m,
+)
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
 from navsvc.fusion.ins.measurements import (
@@ -375,14 +382,14 @@ class StrapdownFilter:
         spread = math.sqrt(2.0) * sigma
         min_move_m = max(cfg.initial_heading_min_move_m,
                          cfg.initial_heading_min_move_sigmas * spread)
-        moved = math.hypot(east - e0, north - n0)
-        if fit is not None and s.travelled_m >= min_move_m:
-            assert s.odo_speed is not None
+        moved, dt = math.hypot(east - e0, north - n0), fix.t - t0
+        if fit is not None and s.travelled_m >= min_move_m and \
+                math.isfinite(fit.variance_rad2) and s.odo_speed is not None and \
+                s.odo_speed * s.odo_scale <= MAX_PLAUSIBLE_SPEED_MPS:
             return ((fit.heading_rad, max(math.sqrt(fit.variance_rad2),
                                           MIN_BASELINE_HEADING_SIGMA_RAD)),
                     (s.odo_speed * s.odo_scale, self.options.initial_sigmas[1]))
-        if fit is None and moved >= min_move_m:
-            dt = fix.t - t0
+        if fit is None and moved >= min_move_m and moved <= MAX_PLAUSIBLE_SPEED_MPS * dt:
             return ((bearing_rad(e0, n0, east, north), max(spread / moved,
                                                            MIN_BASELINE_HEADING_SIGMA_RAD)),
                     (moved / dt, max(spread / dt, self.options.initial_sigmas[1])))

@@ -25,6 +25,7 @@ from navsvc.fusion import kalman, odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import (
+    MAX_PLAUSIBLE_SPEED_MPS,
     MapSeenError,
     RoadDistance,
     TrackFit,
@@ -80,7 +81,6 @@ from navsvc.types import (
 )
 from roadgraph.geometry import LocalFrame, bearing_rad
 
-MAX_PLAUSIBLE_SPEED_MPS = 70.0
 MAX_PLAUSIBLE_ACCEL_MPS2 = 6.0  # a car's horizontal acceleration (braking hard: 8)
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
