@@ -11,12 +11,13 @@ still, zero velocity and zero angular rate are extra measurements: they are what
 vehicle through GPS outages.
 
 Alignment: roll and pitch from the mean specific force while the vehicle stands still (coarse
-levelling; level is assumed if it never stood still), heading from the GPS course once it moves
-faster than ``align_min_speed_mps``; from a receiver that sends no course, from the fixes over
-a straight baseline driven, as the road filter starts (:func:`navsvc.fusion.gnss.fit_track`
-with an odometer, else the bearing between the baseline's ends). Until then no estimate is
-produced. IMU rates are held over each sample interval (rectangular increments); the IMU
-mounting rotation is an option.
+levelling; if no sensor said it stood, from the last second's mean: a tilted mount is better
+levelled so than taken as level), heading from the GPS course once it moves faster than
+``align_min_speed_mps``; from a receiver that sends no course, from the fixes over a straight
+baseline driven, as the road filter starts (:func:`navsvc.fusion.gnss.fit_track` with an
+odometer, else the bearing between the baseline's ends). Until then no estimate is produced.
+Standing is what the wheels say, or without them the GPS speed. IMU rates are held over each
+sample interval (rectangular increments); the IMU mounting rotation is an option.
 """
 
 from __future__ import annotations
@@ -95,10 +96,13 @@ class StrapdownState:
 
     ins: InsFilter | None = None  # None until aligned
     still_f: deque[Array] = field(default_factory=deque)  # specific force while standing
+    recent_f: deque[Array] = field(default_factory=deque)  # ... and lately, standing or not
     rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
     t: float | None = None
     last_output_t: float | None = None
-    standing: bool = True
+    standing: bool | None = None  # None: no sensor has said yet
+    gps_velocity_seen: bool = False  # the receiver reports speed or course: its course
+    # will align the heading
     gps: GpsUsage | None = None
     height_m: float = 0.0
     last_nhc_t: float | None = None
@@ -128,7 +132,8 @@ class StrapdownFilter:
         self.road_distance = road_distance
         self.options = options
         self._mount = euler_to_dcm(*np.radians(options.mounting_rpy_deg)) @ FLU_TO_FRD
-        self.state = StrapdownState(still_f=deque(maxlen=options.level_window))
+        self.state = StrapdownState(still_f=deque(maxlen=options.level_window),
+                                    recent_f=deque(maxlen=options.level_window))
 
     @property
     def t(self) -> float | None:
@@ -149,6 +154,7 @@ class StrapdownFilter:
         if snap.ins is not None:
             snap.ins = _shallow(snap.ins)
         snap.still_f = self.state.still_f.copy()
+        snap.recent_f = self.state.recent_f.copy()
         return snap
 
     def restore(self, snapshot: StrapdownState) -> None:
@@ -199,7 +205,8 @@ class StrapdownFilter:
         if self._predict_to(p.t):
             self._constrain(p.t)
         elif s.ins is None:
-            if s.standing:
+            s.recent_f.append(accel)
+            if s.standing is True:
                 s.still_f.append(accel)
             if s.t is not None and p.t > s.t:
                 s.turned_rad += float(gyro[2]) * (p.t - s.t)
@@ -232,9 +239,9 @@ class StrapdownFilter:
             return
         s.last_nhc_t = t
         v = s.ins.state.v_ned
-        if s.standing and math.hypot(v[0], v[1]) < o.still_speed_mps * 2.0:
-            # standing (GPS says so and the INS agrees): zero velocity and rate calibrate
-            # the gyro while heading cannot be seen
+        if s.standing is True and math.hypot(v[0], v[1]) < o.still_speed_mps * 2.0:
+            # standing (the wheels or GPS say so and the INS agrees): zero velocity and rate
+            # calibrate the gyro while heading cannot be seen
             s.ins.update(Rest(s.rates[0], o.rest_gyro_sigma_rps, o.nhc_sigma_mps))
         else:
             s.ins.update(BodyVelocity(np.zeros(3), (1, 2), np.full(3, o.nhc_sigma_mps)))
@@ -249,7 +256,7 @@ class StrapdownFilter:
         if speed is None:
             return
         s.odo_speed = speed
-        s.standing = speed < self.options.still_speed_mps  # the wheels say so best
+        s.standing = speed < self.options.still_speed_mps  # the wheels say it best
         speed *= s.odo_scale
         if s.ins is None:
             if s.last_odo_t is not None and p.t > s.last_odo_t:
@@ -302,6 +309,7 @@ class StrapdownFilter:
             return [self._estimate()] if s.ins is not None else []
         if self.frame is None:
             self.frame = LocalFrame.for_point(fix.lon_deg, fix.lat_deg)
+        s.gps_velocity_seen |= fix.speed_mps is not None or fix.heading_rad is not None
         if fix.speed_mps is not None and s.odo_speed is None:
             s.standing = fix.speed_mps < self.options.still_speed_mps
         if s.ins is None:
@@ -342,15 +350,15 @@ class StrapdownFilter:
                                                             cfg.gps_map_max_sigma_m)
 
     def _try_align(self, fix: GpsFix) -> None:
-        """Start the INS once a heading is known: from the GPS course, else from the fixes
-        over a baseline (:meth:`_baseline_heading`)."""
+        """Start the INS once a heading is known: from the GPS course, else, from a receiver
+        that sends none, from the fixes over a baseline (:meth:`_baseline_heading`)."""
         o, s = self.options, self.state
         if fix.speed_mps is not None and fix.heading_rad is not None and \
                 fix.speed_mps >= o.align_min_speed_mps:
             self._align(fix, (fix.heading_rad, o.initial_sigmas[3]),
                         (fix.speed_mps, o.initial_sigmas[1]), "heading from the GPS course")
             return
-        found = self._baseline_heading(fix)
+        found = None if s.gps_velocity_seen else self._baseline_heading(fix)
         if found is None:
             s.gps = GpsUsage(False, 0.0, "aligning: waiting to move for a heading")
             return
@@ -373,8 +381,7 @@ class StrapdownFilter:
         t0, e0, n0, _ = s.baseline[0]
         with_odometer = s.odo_speed is not None
         fit = fit_track(s.baseline, sigma) if with_odometer else None
-        standing = s.standing and (with_odometer or fix.speed_mps is not None)  # else unknown
-        if standing or fix.t - t0 > cfg.initial_heading_max_baseline_s or \
+        if s.standing is True or fix.t - t0 > cfg.initial_heading_max_baseline_s or \
                 abs(s.turned_rad) > cfg.initial_heading_max_turn_rad or \
                 (fit is not None and not fit.agrees):
             s.baseline, s.travelled_m, s.turned_rad = ((fix.t, east, north, 0.0),), 0.0, 0.0
@@ -400,8 +407,8 @@ class StrapdownFilter:
         """The INS starts at the fix, level from the IMU, with this heading and speed (each a
         value and its sigma)."""
         o, s = self.options, self.state
-        roll, pitch = level_from_accel(np.mean(s.still_f, axis=0)) if s.still_f \
-            else (0.0, 0.0)
+        level_f = s.still_f or s.recent_f  # see the module's docstring
+        roll, pitch = level_from_accel(np.mean(level_f, axis=0)) if level_f else (0.0, 0.0)
         yaw, yaw_sigma = heading
         sigma = self._sigma_m(fix)
         sd = o.initial_sigmas
@@ -416,6 +423,7 @@ class StrapdownFilter:
         s.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
                            o.mechanisation)
         s.still_f.clear()  # levelled
+        s.recent_f.clear()
         s.baseline = ()
         s.last_output_t = fix.t
         s.gps = GpsUsage(True, 1.0, f"aligned: level from the IMU, {how}")
