@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError
 from navsvc.fusion import FusionConfig, SensorConfig
+from navsvc.fusion.ins import dcm_to_euler
 from navsvc.fusion.ins.strapdown import StrapdownFilter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.session import VehicleSession, config_from_options
@@ -84,6 +85,28 @@ def test_strapdown_needs_the_6_axis_imu(sample_graph: RoadGraph) -> None:
 def test_strapdown_refuses_what_it_cannot_do() -> None:
     with pytest.raises(ConfigError, match="fusion must be ekf"):
         config_from_options({"sensors": "strapdown", "fusion": "rules"})
+
+
+def test_a_tilted_imu_on_a_moving_car_is_levelled_from_its_last_second() -> None:
+    """An IMU pitched 3 degrees nose-up (its x axis reads 0.51 m/s^2 of gravity) on a car
+    whose wheels say it moves from the start: no standstill to level from, so the mean of
+    the last second's specific force levels it, not an assumed level mount; samples before
+    any sensor spoke are no standstill's."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    pitch = math.radians(3.0)
+    tilted = (9.81 * math.sin(pitch), 0.0, 9.81 * math.cos(pitch))  # FLU, at constant speed
+    for k in range(100):
+        t = 0.01 * k
+        if k % 10 == 0:
+            ins.apply(OdometerSample(t, speed_mps=10.0))
+        ins.apply(ImuSample(t, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=tilted))
+    lon, lat = frame.to_wgs84(0.0, 0.0)
+    ins.apply(GpsFix(1.0, lat_deg=lat, lon_deg=lon, accuracy_m=2.0, speed_mps=10.0,
+                     heading_rad=0.0))
+    assert ins.ins is not None
+    _, pitch_now, _ = dcm_to_euler(ins.ins.state.c_bn)
+    assert abs(abs(pitch_now) - pitch) < math.radians(0.1)
 
 
 def test_no_alignment_from_implausible_wheels_or_fixes() -> None:
