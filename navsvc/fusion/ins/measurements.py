@@ -107,7 +107,6 @@ class Rest:
         return _linearised(ins, y, H, R)
 
 
-
 @dataclass(frozen=True)
 class AcrossRoad:
     """Map feedback: the position lies on the road through ``point`` with bearing
