@@ -13,6 +13,7 @@ from typing import Protocol
 import numpy as np
 
 from navsvc.types import GpsFix, GpsFixType
+from roadgraph.geometry import bearing_rad
 
 # A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
 # fix in a street canyon is off by tens of metres as often as not).
@@ -135,3 +136,20 @@ def fit_track(fixes: tuple[tuple[float, float, float, float], ...],
     agrees = bool(np.all(misfit_m <= 3.0 * sigma_m + 0.1 * np.abs(e))) and \
         abs(slope - 1.0) <= 3.0 * math.sqrt(variance) + 0.1
     return TrackFit(math.atan2(float(u[0]), float(u[1])) % (2.0 * math.pi), variance, agrees)
+
+
+def baseline_heading(fit: TrackFit | None, ends: tuple[float, float, float, float],
+                     travelled_m: float, spread_m: float, min_move_m: float,
+                     min_move_sigmas: float) -> tuple[float, float] | None:
+    """A start-up heading (clockwise from north) and its variance from a baseline of fixes,
+    once it is ``min_move_m`` and ``min_move_sigmas`` of the fixes' spread long: with an
+    odometer, the fit (:func:`fit_track`), once the odometer drove that far (the fixes' own
+    distance is no baseline: a fix 22 m off after a few metres driven made one, and the
+    heading started with a sigma of 600 degrees); without one, the bearing between the
+    baseline's ends ``(east, north, east, north)``, once they lie that far apart. None
+    before. Both filters start so."""
+    need_m = max(min_move_m, min_move_sigmas * spread_m)
+    if fit is not None:
+        return (fit.heading_rad, fit.variance_rad2) if travelled_m >= need_m else None
+    moved_m = math.hypot(ends[2] - ends[0], ends[3] - ends[1])
+    return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= need_m else None

@@ -37,6 +37,7 @@ from navsvc.fusion.gnss import (
     MAX_PLAUSIBLE_SPEED_MPS,
     MapSeenError,
     RoadDistance,
+    baseline_heading,
     fit_track,
     gps_problem,
     gps_sigma_m,
@@ -55,7 +56,6 @@ from navsvc.fusion.ins.total_state import ins_filter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
-from roadgraph.geometry import bearing_rad
 
 FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 NO_HEIGHT_SIGMA_M = 50.0
@@ -379,28 +379,28 @@ class StrapdownFilter:
         sigma = self._sigma_m(fix)
         s.baseline = (*s.baseline, (fix.t, east, north, s.travelled_m))
         t0, e0, n0, _ = s.baseline[0]
-        with_odometer = s.odo_speed is not None
-        fit = fit_track(s.baseline, sigma) if with_odometer else None
+        fit = fit_track(s.baseline, sigma) if s.odo_speed is not None else None
         if s.standing is True or fix.t - t0 > cfg.initial_heading_max_baseline_s or \
                 abs(s.turned_rad) > cfg.initial_heading_max_turn_rad or \
                 (fit is not None and not fit.agrees):
             s.baseline, s.travelled_m, s.turned_rad = ((fix.t, east, north, 0.0),), 0.0, 0.0
             return None
         spread = math.sqrt(2.0) * sigma
-        min_move_m = max(cfg.initial_heading_min_move_m,
-                         cfg.initial_heading_min_move_sigmas * spread)
-        moved, dt = math.hypot(east - e0, north - n0), fix.t - t0
-        if fit is not None and s.travelled_m >= min_move_m and \
-                math.isfinite(fit.variance_rad2) and s.odo_speed is not None and \
-                s.odo_speed * s.odo_scale <= MAX_PLAUSIBLE_SPEED_MPS:
-            return ((fit.heading_rad, max(math.sqrt(fit.variance_rad2),
-                                          MIN_BASELINE_HEADING_SIGMA_RAD)),
-                    (s.odo_speed * s.odo_scale, self.options.initial_sigmas[1]))
-        if fit is None and moved >= min_move_m and moved <= MAX_PLAUSIBLE_SPEED_MPS * dt:
-            return ((bearing_rad(e0, n0, east, north), max(spread / moved,
-                                                           MIN_BASELINE_HEADING_SIGMA_RAD)),
-                    (moved / dt, max(spread / dt, self.options.initial_sigmas[1])))
-        return None
+        found = baseline_heading(fit, (e0, n0, east, north), s.travelled_m, spread,
+                                 cfg.initial_heading_min_move_m,
+                                 cfg.initial_heading_min_move_sigmas)
+        if found is None or not math.isfinite(found[1]):
+            return None
+        if s.odo_speed is not None:  # the fit's
+            speed = s.odo_speed * s.odo_scale, self.options.initial_sigmas[1]
+        else:
+            moved, dt = math.hypot(east - e0, north - n0), fix.t - t0
+            if moved > MAX_PLAUSIBLE_SPEED_MPS * dt:  # (fixes at one instant too)
+                return None
+            speed = moved / dt, max(spread / dt, self.options.initial_sigmas[1])
+        if speed[0] > MAX_PLAUSIBLE_SPEED_MPS:
+            return None
+        return (found[0], max(math.sqrt(found[1]), MIN_BASELINE_HEADING_SIGMA_RAD)), speed
 
     def _align(self, fix: GpsFix, heading: tuple[float, float], speed: tuple[float, float],
                how: str) -> None:

@@ -29,6 +29,7 @@ from navsvc.fusion.gnss import (
     MapSeenError,
     RoadDistance,
     TrackFit,
+    baseline_heading,
     fit_track,
     gps_problem,
     gps_sigma_m,
@@ -464,7 +465,9 @@ class RoadFilter:
                     first = None  # fixes off the line the odometer drove (a jump of the
                     # fixes among them): start over
                 else:
-                    heading = self._baseline_heading(fit, (e0, n0, east, north), moved, spread)
+                    heading = baseline_heading(
+                        fit, (e0, n0, east, north), s.travelled_m, spread,
+                        cfg.initial_heading_min_move_m, cfg.initial_heading_min_move_sigmas)
                     if heading is not None and speed is None:
                         speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
@@ -636,23 +639,6 @@ class RoadFilter:
             n, mean_e, mean_n = 0, 0.0, 0.0
         n += 1
         s.still_fixes = (n, mean_e + (east - mean_e) / n, mean_n + (north - mean_n) / n, t)
-
-    def _baseline_heading(self, fit: TrackFit | None, ends: tuple[float, float, float, float],
-                          moved_m: float, spread_m: float) -> tuple[float, float] | None:
-        """The start-up heading and its variance once the baseline is
-        ``initial_heading_min_move_m`` and ``initial_heading_min_move_sigmas`` of the fixes'
-        spread long: with an odometer, the fit, once the odometer drove that far (the fixes'
-        own distance is no baseline: a fix 22 m off after a few metres driven made one, and
-        the heading started with a sigma of 600 degrees); without one, the bearing between
-        the ends (``moved_m`` apart), once they lie that far apart."""
-        cfg = self.config
-        min_move_m = max(cfg.initial_heading_min_move_m,
-                         cfg.initial_heading_min_move_sigmas * spread_m)
-        if fit is not None:
-            return (fit.heading_rad, fit.variance_rad2) \
-                if self.state.travelled_m >= min_move_m else None
-        return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= min_move_m \
-            else None
 
     def _odometer_track_fit(self, sigma_m: float) -> TrackFit | None:
         """With an odometer, the start-up fixes fitted to the line it drove
