@@ -13,6 +13,9 @@ the levels seen on real urban drives and in consumer hardware:
 * odometer: scale error up to 5 % (tyre wear and pressure); on some drives a wheel-speed
   sensor sending speed only, at 5-50 Hz.
 * the car stands still for a while before it drives off.
+* the car drives in its lane, not on the road's centre line that the map holds: 1-3.5 m right
+  of a two-way road's, up to 2 m either side of a one-way road's (map feedback that pulls the
+  estimate onto the centre line is then held to the error it really has).
 
 Every range is a constant of :data:`RANGES`, so that a test can hold the draws to them.
 """
@@ -50,6 +53,9 @@ class HarshUrbanRanges:
     odometer_rate_hz: tuple[float, ...] = (5.0, 10.0, 20.0, 25.0, 50.0)
     odometer_speed_only_share: float = 0.5
     start_standstill_s: tuple[float, float] = (5.0, 30.0)
+    lane_offset_m: tuple[float, float] = (1.0, 3.5)  # right of a two-way road's centre line:
+    # the middle of its right lane, on roads of two to four lanes of 2.5-3.5 m
+    one_way_offset_m: tuple[float, float] = (-2.0, 2.0)  # any lane of a one-way road
 
 
 RANGES = HarshUrbanRanges()
@@ -91,4 +97,6 @@ def harsh_urban_spec(spec: DriveSpec, ranges: HarshUrbanRanges = RANGES) -> Driv
         else "distance",
         gps_reports_velocity=bool(rng.random() < ranges.gps_velocity_share),
         gps_reports_hdop=bool(rng.random() < ranges.gps_hdop_share),
-        start_standstill_s=_uniform(rng, ranges.start_standstill_s))
+        start_standstill_s=_uniform(rng, ranges.start_standstill_s),
+        lane_offset_m=_uniform(rng, ranges.lane_offset_m),
+        one_way_offset_m=_uniform(rng, ranges.one_way_offset_m))

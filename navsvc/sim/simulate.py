@@ -120,6 +120,9 @@ class DriveSpec:
     wheelbase_m: float = 2.7
     errors: SensorErrors = field(default_factory=SensorErrors)
     start_standstill_s: float = 0.0  # stand still this long before driving off
+    lane_offset_m: float = 0.0  # the car drives this far right of a two-way road's centre
+    # line (its lane; the map has only the centre line) ...
+    one_way_offset_m: float = 0.0  # ... and this far right of a one-way road's (left: < 0)
     odometer_reports: str = "distance"  # "distance" (cumulative, ticks) or "speed" (only)
     gps_reports_velocity: bool = True  # speed and course on each fix
     gps_reports_hdop: bool = True
@@ -258,6 +261,30 @@ def _remove_spikes(xy: FloatArray, owner: list[int],
     return xy, owner
 
 
+def _keep_lane(xy: FloatArray, oneway: list[bool], spec: DriveSpec,
+               blend_m: float = 20.0, spacing_m: float = 2.0) -> FloatArray:
+    """The rounded centre line moved sideways into the car's lane: ``lane_offset_m`` right
+    of a two-way road's centre line, ``one_way_offset_m`` of a one-way road's (``oneway``:
+    per segment). The offset changes smoothly over ``blend_m`` where the road's kind changes
+    (a lane change), and is held within a third of the curve's radius, so that a tight
+    corner is not turned inside out."""
+    per_segment = np.where(oneway, spec.one_way_offset_m, spec.lane_offset_m)
+    offset = np.concatenate([per_segment[:1], 0.5 * (per_segment[:-1] + per_segment[1:]),
+                             per_segment[-1:]])
+    k = int(round(blend_m / spacing_m / 2.0))
+    if len(offset) > 2 * k + 1:
+        padded = np.concatenate([np.repeat(offset[:1], k), offset, np.repeat(offset[-1:], k)])
+        offset = np.convolve(padded, np.ones(2 * k + 1) / (2 * k + 1), mode="valid")
+    step = np.gradient(xy, axis=0)
+    heading = np.unwrap(np.arctan2(step[:, 0], step[:, 1]))
+    length = np.maximum(np.hypot(step[:, 0], step[:, 1]), 1e-9)
+    radius = length / np.maximum(np.abs(np.gradient(heading)), 1e-9)
+    offset = np.clip(offset, -radius / 3.0, radius / 3.0)
+    right = np.column_stack([np.cos(heading), -np.sin(heading)])  # clockwise of the heading
+    moved: FloatArray = xy + offset[:, None] * right
+    return moved
+
+
 def _build_path(graph: RoadGraph, route: list[EdgeKey], spec: DriveSpec,
                 rng: np.random.Generator) -> _Path:
     pts, owner, node_s = [], [], []
@@ -270,6 +297,9 @@ def _build_path(graph: RoadGraph, route: list[EdgeKey], spec: DriveSpec,
     xy, owner = _resample(xy, np.array(owner), spacing_m=2.0)
     xy, owner = _remove_spikes(xy, owner)
     xy = _round_corners(xy, spec.corner_half_width_m, spacing_m=2.0)
+    if spec.lane_offset_m or spec.one_way_offset_m:
+        xy = _keep_lane(xy, [graph.edge(route[o]).oneway for o in owner], spec)
+        xy, owner = _remove_spikes(xy, owner)
     xy, owner = _chaikin(xy, owner)
     seg = np.diff(xy, axis=0)
     seg_len = np.hypot(seg[:, 0], seg[:, 1])

@@ -46,6 +46,7 @@ def test_rates_receiver_and_odometer_within_their_ranges(seed: int) -> None:
     assert 5.0 <= spec.odometer_rate_hz <= 50.0
     assert spec.odometer_reports in ("distance", "speed")
     assert _within(spec.start_standstill_s, RANGES.start_standstill_s)
+    assert 1.0 <= spec.lane_offset_m <= 3.5 and abs(spec.one_way_offset_m) <= 2.0
 
 
 @given(seeds)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from navsvc.sim.simulate import DriveSpec, SensorErrors, simulate_drive
-from roadgraph import RoadGraph
+from roadgraph import EdgeKey, RoadGraph
 
 PINNED = Path(__file__).resolve().parent / "data" / "default_drives.json"
 PINNED_SPECS = {  # as pinned on 2026-12-01, before the harsh-urban options existed (the
@@ -148,6 +148,36 @@ def test_gyro_turn_on_bias_at_standstill(sample_graph: RoadGraph) -> None:
                                          gyro_noise_dps=0.0, gyro_bias_drift_dps_per_sqrt_s=0.0))
     imu = [r for r in simulate_drive(sample_graph, spec) if r["kind"] == "imu" and r["t"] < 9.0]
     assert imu and all(r["yaw_rate_dps"] == pytest.approx(0.8) for r in imu)
+
+
+def _distance_to_own_road(graph: RoadGraph, records: list[dict[str, Any]]) -> np.ndarray:
+    """Each truth record's signed distance from the centre line of the edge it is on (right
+    of the direction of travel positive), away from the ends of its edge (corners)."""
+    out = []
+    truth = [r for r in records if r["kind"] == "truth" and r["speed_mps"] > 1.0]
+    for r, (x, y) in zip(truth, _local(graph, truth), strict=True):
+        key = next(k for k in graph.out_edges(r["u"]) if k.v == r["v"])
+        edge = EdgeKey(key.u, key.v, key.key)
+        p = graph.project(edge, x, y)
+        if min(p.offset_m, p.remaining_m) < 15.0:
+            continue
+        right = (x - p.x_m) * math.cos(p.bearing_rad) - (y - p.y_m) * math.sin(p.bearing_rad)
+        out.append((right, key.oneway))
+    return np.array(out)
+
+
+def test_the_car_keeps_its_lane_right_of_the_centre_line(sample_graph: RoadGraph) -> None:
+    """Two-way roads ``lane_offset_m`` right of the centre line, one-way roads
+    ``one_way_offset_m``; without them, on it (the map's line, which map feedback pulls to)."""
+    spec = DriveSpec(duration_s=240.0, seed=12, lane_offset_m=2.5, one_way_offset_m=-1.0)
+    lanes = _distance_to_own_road(sample_graph, simulate_drive(sample_graph, spec))
+    centre = _distance_to_own_road(sample_graph, simulate_drive(
+        sample_graph, replace(spec, lane_offset_m=0.0, one_way_offset_m=0.0)))
+    two_way, one_way = lanes[lanes[:, 1] == 0, 0], lanes[lanes[:, 1] == 1, 0]
+    assert len(two_way) > 100 and len(one_way) > 20
+    assert np.median(two_way) == pytest.approx(2.5, abs=0.3)
+    assert np.median(one_way) == pytest.approx(-1.0, abs=0.3)
+    assert np.median(np.abs(centre[:, 0])) < 0.3
 
 
 def test_impossible_options_refused() -> None:
