@@ -95,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "NLOS runs of 20-80 m for 10-60 s, course noise growing as speed falls, "
                      "fixes at 1-10 Hz and 0.1-0.2 s late, gyro bias up to 1 deg/s and scale "
                      "error up to 3 %%, odometer scale error up to 5 %%, speed-only odometers, "
-                     "a standstill at the start); default: default")
+                     "a standstill at the start, a car 1-3.5 m off the map's centre line in "
+                     "its lane); default: default")
     sim.add_argument("--gps-error", choices=["synthetic", "urbannav"], default="synthetic",
                      help="GPS position error: synthetic (the profile's model) or urbannav "
                      "(real urban-canyon error of a receiver in Hong Kong, fix minus truth, "
