@@ -6,7 +6,8 @@ repository (Monaco, Andorra, GraphHopper's test maps, FMM's Stockholm), each dri
 error levels drawn from its seed (``navsvc.sim.harsh``), a 60 s GPS outage in the middle, and
 on every third seed the real urban-canyon GNSS error of UrbanNav Hong Kong replayed in place
 of the synthetic one (``navsvc.sim.gnss_replay``; its own gaps come on top of the outage).
-Tunnels block GPS as they do on the road.
+Tunnels block GPS as they do on the road. The car keeps its lane, off the centre line the map
+holds (so map feedback gains only what it would on a real road).
 
 Seeds come in two disjoint sets: TUNE for trying changes, REPORT for the figures quoted
 (use it once per change, never to choose parameters). Each drive replays the same packets
