@@ -83,9 +83,8 @@ def _parser() -> argparse.ArgumentParser:
                         "gyro_accel:ekf (the first counts as the default in the tables)")
     parser.add_argument("--workers", type=int, default=2, help="processes (at most 2 here)")
     parser.add_argument("--map-feedback", action=argparse.BooleanOptionalAction,
-                        default=None, help="sessions with or without map feedback (the "
-                        "matched road corrects the filter; default: as a session, on where "
-                        "the sensor configuration allows it)")
+                        default=True, help="sessions with or without map feedback (the "
+                        "matched road corrects the filter; default: with, as a session)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a FusionConfig number for every run (tuning; "
                         "repeatable), e.g. --set gps_bias_tau_s=60")
@@ -162,7 +161,7 @@ def harsh_drive(graph: RoadGraph, seed: int, duration: float
     return simulate_drive(graph, spec), spec, outage_start
 
 
-def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, bool | None]
+def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, bool]
                ) -> list[dict[str, Any]]:
     map_name, seed, duration, all_configs, overrides, chosen, feedback = job
     graph = RoadGraph.open(_map_db(map_name))

@@ -81,8 +81,7 @@ class SessionConfig:
     fusion: FusionConfig = FusionConfig()
     matcher: MatcherConfig = MatcherConfig()
     strapdown: StrapdownOptions = StrapdownOptions()  # the INS, for sensors "strapdown"
-    map_feedback: bool | None = None  # matched road → pseudo-measurement into the filter;
-    # None: the default, on
+    map_feedback: bool = True  # matched road → pseudo-measurement into the filter
     match_interval_s: float = 0.1  # the matcher also steps between outputs (short edges)
     feedback_sigma_across_m: float = 2.0
     feedback_sigma_heading_rad: float = math.radians(5.0)
@@ -91,11 +90,6 @@ class SessionConfig:
     # across-road uncertainty (an outage's drift is pulled back, a wrong road's pull is not)
     feedback_max_heading_sigma_rad: float = math.radians(60.0)  # none for a heading less
     # sure than this: it is unknown, and "along the road" then says nothing
-
-    @property
-    def feedback(self) -> bool:
-        """Whether the session feeds the matched road back (``map_feedback`` resolved)."""
-        return self.map_feedback is not False
 
 
 @dataclass
@@ -387,7 +381,7 @@ class VehicleSession:
         else:
             position = self.matcher.update(estimate)
             self._last_match_t = estimate.t
-            if self.config.feedback:
+            if self.config.map_feedback:
                 self._feed_back(position)
         self.last_position = position
         return position
@@ -475,7 +469,7 @@ class SessionOptions(BaseModel):
             mounting_rpy_deg=_or(self.imu_mounting_rpy_deg, ins.mounting_rpy_deg),
             lever_arm_m=_or(self.gps_lever_arm_m, ins.lever_arm_m))
         config = SessionConfig(fusion=fusion, strapdown=strapdown,
-                               map_feedback=self.map_feedback)
+                               map_feedback=_or(self.map_feedback, True))
         return apply_profile(config, self.profile)
 
     def as_dict(self) -> dict[str, Any]:
@@ -535,12 +529,8 @@ def _set_path(obj: Any, path: list[str], value: Any, name: str) -> Any:
         raise ConfigError(f"profile parameter {name!r}: {type(obj).__name__} has no field "
                           f"{head!r}")
     current = getattr(obj, head)
-    optional_bool = current is None and "bool" in str(
-        next(f.type for f in fields(obj) if f.name == head))  # unset, e.g. map_feedback
     if rest:
         new = _set_path(current, rest, value, name)
-    elif optional_bool:
-        new = _number(value, bool, name)
     elif isinstance(current, bool | int | float) and not isinstance(current, enum.Enum):
         new = _number(value, type(current), name)
     else:

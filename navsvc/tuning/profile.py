@@ -30,8 +30,6 @@ FORMAT = "navsvc-profile/1"
 
 def current_value(config: SessionConfig, name: str) -> Value:
     """The value of parameter ``name`` in ``config`` (a fuzzy ``.scale`` is 1 unless set)."""
-    if name == "map_feedback":
-        return config.feedback  # None means the configuration's default
     obj: Any = config
     parts = name.split(".")
     for part in parts:
