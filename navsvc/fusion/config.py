@@ -66,6 +66,13 @@ class FusionConfig:
     jump_map_track_off_m: float = 12.0  # ... the jump is followed when the estimate's track
     # lies this far (rms) from any road along its heading ...
     jump_map_ratio: float = 2.0  # ... and this many times farther than the fixes' track
+    turned_path_window_s: float = 20.0  # ekf with dead reckoning: refused fixes whose path
+    # over this long is the estimate's turned (a heading gone wrong) ...
+    turned_path_min_fixes: int = 10  # ... one a second, at least this many, ...
+    turned_path_min_rad: float = math.radians(30.0)  # ... by at least this much ...
+    turned_path_misfit_sigmas: float = 2.0  # ... and lies within this many fix sigmas of it
+    turned_path_shift_misfit_m: float = 20.0  # ... while this far (rms) from it only shifted
+    # (a non-line-of-sight error that changes as the car turns looks turned over short paths)
     gps_map_memory_s: float = 60.0  # ekf with a map: the fixes' distance from the roads is
     # learnt over this long (it measures their slowly changing error, which the NIS cannot)
     gps_map_max_sigma_m: float = 10.0  # ... a floor of at most this

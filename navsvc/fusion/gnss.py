@@ -153,3 +153,37 @@ def baseline_heading(fit: TrackFit | None, ends: tuple[float, float, float, floa
         return (fit.heading_rad, fit.variance_rad2) if travelled_m >= need_m else None
     moved_m = math.hypot(ends[2] - ends[0], ends[3] - ends[1])
     return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= need_m else None
+
+
+@dataclass(frozen=True)
+class PathTurn:
+    """How far the fixes' path is turned from the estimate's over the same seconds."""
+
+    angle_rad: float  # the fixes' path is the estimate's turned clockwise by this much
+    variance_rad2: float
+    misfit_m: float  # rms distance of the fixes from the turned path
+    shift_misfit_m: float  # ... and from the path only shifted
+
+
+def turn_between_paths(estimate_m: np.ndarray, fixes_m: np.ndarray,
+                       sigma_m: float) -> PathTurn:
+    """The rotation (and shift) that best lays the estimate's positions ``(n, 2)`` (east,
+    north) onto the fixes taken at the same times: a 2-D Procrustes fit about their
+    centroids. A heading error turns the dead-reckoned path about where it began, so the
+    angle is that error; a non-line-of-sight offset shifts the fixes' path without turning
+    it. The angle's variance is ``sigma^2`` over the estimate path's spread about its
+    centroid; infinite before the path spans any distance."""
+    def rms(d: np.ndarray) -> float:
+        return math.sqrt(float(np.mean(np.sum(d * d, axis=1))))
+
+    a = estimate_m - estimate_m.mean(axis=0)
+    b = fixes_m - fixes_m.mean(axis=0)
+    spread_m2 = float(np.sum(a * a))
+    if spread_m2 <= 0.0:
+        return PathTurn(0.0, math.inf, math.inf, rms(b - a))
+    dot = float(np.sum(a * b))
+    cross = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))  # counter-clockwise
+    angle = math.atan2(cross, dot)
+    c, s = math.cos(angle), math.sin(angle)
+    turned = np.column_stack([c * a[:, 0] - s * a[:, 1], s * a[:, 0] + c * a[:, 1]])
+    return PathTurn(-angle, sigma_m ** 2 / spread_m2, rms(b - turned), rms(b - a))

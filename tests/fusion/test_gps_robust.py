@@ -115,6 +115,27 @@ def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:
     assert used[:5] == [True] * 5 and sum(used) >= 0.9 * len(used), after
 
 
+@pytest.mark.parametrize("turn_deg", [45.0, 120.0, 180.0])
+def test_a_heading_gone_wrong_is_left_once_the_fixes_path_shows_it(turn_deg: float) -> None:
+    """The estimate's heading turned by ``turn_deg`` at 60 s, as a start-up on urban fixes
+    or a long outage can leave it: the fixes run away from the track and were refused as
+    a jump for a minute and more. Their path is the dead-reckoned one turned, which a
+    non-line-of-sight run's is not: the heading is turned back and the estimate is on the
+    fixes (within twice their sigma) ten fixes later."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    fixes = []
+    for p in _drive(100.0, [], accuracy_m=2.0):
+        if p.t == 60.0 and isinstance(p, ImuSample):
+            road.state.x[HEADING] += math.radians(turn_deg)
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and e.gps is not None:
+                fixes.append((p.t, math.hypot(e.x_m, e.y_m - _north_m(p.t)), e.gps.reason))
+    assert any("path is turned" in reason for t, _, reason in fixes if 60.0 < t <= 70.0)
+    after = [(t, err) for t, err, _ in fixes if t > 70.0]
+    assert all(err < 4.0 for _, err in after), after
+    assert abs(math.remainder(road.state.x[HEADING], 2.0 * math.pi)) < math.radians(3.0)
+
+
 def test_with_the_map_a_jump_off_the_roads_is_still_refused() -> None:
     _, fixes = _run(_drive(120.0, [(60.0, 90.0, 50.0)]), _north_road_distance)
     during = [f for f in fixes if 60.0 <= f[0] < 90.0]
