@@ -989,13 +989,14 @@ class RoadFilter:
 
         A start-up 126 degrees off on replayed urban fixes (gh-issue-70 168 of the tune
         split) had the true fixes refused as a jump, again and again, for 90 s, 200 m off
-        (9.2x raw GPS; 4.2x with this rule). Tune split against no such rule: default (600
-        drives) that drive better, no other changed; steering, gyro_accel and
-        gyro_two_accels ekf (120 each) one drive better each (19.0 -> 8.6x, 3.5 -> 1.4x,
-        5.3 -> 1.4x), none worse. Five fixes (not ten) made a non-line-of-sight run changing
-        as the car turned look turned (Andorra 27: 0.25 -> 1.9x); the estimate's own
-        positions (not the dead-reckoned path) hold the pulls of down-weighted fixes and
-        turned nothing right."""
+        (9.2x raw GPS; 2.0x with this rule, 4.2x with ten fixes). Tune split against no
+        such rule: default (600 drives) that drive better, no other changed; with ten fixes,
+        steering, gyro_accel and gyro_two_accels ekf (120 each) one drive better each (19.0
+        -> 8.6x, 3.5 -> 1.4x, 5.3 -> 1.4x), none worse, and the same with seven (24 drives
+        a map). Five fixes made a
+        non-line-of-sight run changing as the car turned look turned (Andorra 27: 0.25 ->
+        1.9x); the estimate's own positions (not the dead-reckoned path) hold the pulls of
+        down-weighted fixes and turned nothing right."""
         s, cfg = self.state, self.config
         if len(s.paths) < cfg.turned_path_min_fixes or self.profile.gps_alone:
             return None
