@@ -72,8 +72,8 @@ class MapSeenError:
             return self
         d = distance_m if self.learnt_s <= 0.0 else \
             min(distance_m, 3.0 * math.sqrt(max(self.mean_sq_m2, 1.0)))
-        return MapSeenError(learnt_s, self.mean_sq_m2 + (d * d - self.mean_sq_m2) *
-                            dt_s / learnt_s)
+        weight = dt_s / learnt_s  # first: a denormal dt times d^2 rounds past d^2
+        return MapSeenError(learnt_s, self.mean_sq_m2 + (d * d - self.mean_sq_m2) * weight)
 
     def variance_ratio(self, sigma_m: float, memory_s: float, max_sigma_m: float,
                        min_ratio: float) -> float:

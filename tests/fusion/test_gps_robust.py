@@ -433,7 +433,8 @@ def test_fixes_refused_past_the_gate_leave_the_gyro_bias_alone() -> None:
     """A heading knocked 60 degrees off on a track not yet settled: the fixes run away from
     the estimate and are refused, each still pulling; the pull moves position, heading and
     speed, never the gyro bias (its linearisation does not hold that far off: a pull once
-    put 4.5 deg/s into it and the heading spun for minutes)."""
+    put 4.5 deg/s into it and the heading spun for minutes). Seven refused fixes later
+    their path shows the heading turned, and it is turned back."""
     road = RoadFilter(FusionConfig(), FRAME)
     refused, worst_rps = 0, 0.0
     for p in _drive(90.0, []):
@@ -444,7 +445,7 @@ def test_fixes_refused_past_the_gate_leave_the_gyro_bias_alone() -> None:
             if isinstance(p, GpsFix) and p.t > 30.0 and e.gps is not None:
                 refused += e.gps.reason == "down-weighted: innovation too large"
                 worst_rps = max(worst_rps, abs(road.state.x[GYRO_BIAS] - GYRO_BIAS_RPS))
-    assert refused >= 10
+    assert refused >= 5
     assert worst_rps < math.radians(0.2)
 
 
