@@ -185,7 +185,7 @@ def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, b
 
 def _cards(rows: list[dict[str, Any]]) -> list[Scorecard]:
     fields = Scorecard.__dataclass_fields__
-    return [Scorecard(**{k: r[k] for k in fields}) for r in rows]
+    return [Scorecard(**{k: r[k] for k in fields if k in r}) for r in rows]
 
 
 def _values(rows: list[dict[str, Any]], key: str) -> list[float]:
@@ -222,6 +222,9 @@ def _print_targets(rows: list[dict[str, Any]], title: str) -> None:
                   "(no target; worst = lowest)", ""])
     table.append(["mean NEES per dof", _median(rows, "mean_nees_per_dof"),
                   _worst(rows, "mean_nees_per_dof"), "(1 when consistent)", ""])
+    table.append(["fixes to recover after outage", _median(rows, "recovery_fixes"),
+                  _worst(rows, "recovery_fixes"),
+                  "(issue: within 2x raw GPS RMS in <= 5 fixes, one a second)", ""])
     table.append(["output share %", _pct(_median(rows, "output_share")),
                   _pct(min(r["output_share"] for r in rows)),
                   f"(no target; worst = lowest; {_no_output(rows)} drives without output)", ""])
@@ -252,11 +255,12 @@ def _print_configs(rows: list[dict[str, Any]],
                       _worst(g, "fused_to_raw_ratio"), _median(g, "outage_drift_pct"),
                       _worst(g, "outage_drift_pct"), _pct(_median(g, "circle_share")),
                       _worst(g, "max_matched_error_with_gps_m"),
-                      _pct(_median(g, "right_road_share")), _no_output(g), f"{met}/4"])
+                      _pct(_median(g, "right_road_share")), _worst(g, "recovery_fixes"),
+                      _no_output(g), f"{met}/4"])
     print_table("Every configuration (medians; max where said)",
                 ["sensors", "mode", "ratio", "ratio max", "drift %", "drift max %",
-                 "in 2.45σ %", "max err w/ GPS m", "right road %", "no output", "targets met"],
-                table)
+                 "in 2.45σ %", "max err w/ GPS m", "right road %", "recover fixes max",
+                 "no output", "targets met"], table)
 
 
 def main() -> None:

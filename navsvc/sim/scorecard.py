@@ -14,7 +14,10 @@ On top of :func:`navsvc.sim.evaluate.evaluate` (position errors, outage drift, r
   fix in the second before;
 * the share of epochs on the right road;
 * the share of the drive's seconds that had an estimate at all (a drive with none scores an
-  infinite ratio: it fails, where a NaN had dropped it from the medians unseen).
+  infinite ratio: it fails, where a NaN had dropped it from the medians unseen);
+* how many fixes (one a second: faster ones are not independent) after the planned outage
+  the fused estimate takes to be back within twice the drive's raw GPS RMS error (issue 15:
+  "within 5 fixes"); infinite when it never is.
 
 Inputs are wire records, as for ``evaluate``.
 """
@@ -48,6 +51,7 @@ class Scorecard:
     fused_rms_m: float
     raw_gps_rms_m: float
     output_share: float  # of the drive's seconds, those with an estimate
+    recovery_fixes: float | None = None  # after the planned outage, to 2x raw GPS RMS
 
 
 @dataclass(frozen=True)
@@ -126,6 +130,25 @@ def max_error_with_gps_m(drive: list[dict[str, Any]],
     return float(err[has].max()) if has.any() else None
 
 
+def fixes_to_recover(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
+                     after_s: float, within_m: float) -> float | None:
+    """The fixes after ``after_s``, one a second, up to the first at which the fused
+    estimate (the first at or after the fix) lies within ``within_m`` of the truth;
+    infinite when none does, None without fixes after it."""
+    est_t, err = _errors(drive, estimates, "fused_lat", "fused_lon")
+    fixes: list[float] = []
+    for t in sorted(r["t"] for r in drive if r.get("kind") == "gps" and r["t"] > after_s):
+        if not fixes or t - fixes[-1] >= 1.0:
+            fixes.append(t)
+    if not fixes:
+        return None
+    for n, t in enumerate(fixes, start=1):
+        i = int(np.searchsorted(est_t, t - 1e-9))
+        if i < len(est_t) and err[i] <= within_m:
+            return float(n)
+    return math.inf
+
+
 def score(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
           outage_start_s: float) -> Scorecard:
     """The scorecard of a run; the outage scored is the GPS gap around ``outage_start_s``."""
@@ -139,7 +162,9 @@ def score(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
         circle_share=circle, mean_nees_per_dof=nees,
         max_matched_error_with_gps_m=max_error_with_gps_m(drive, estimates),
         right_road_share=e.on_right_road_share,
-        fused_rms_m=e.fused.rms_m, raw_gps_rms_m=e.raw_gps.rms_m, output_share=share)
+        fused_rms_m=e.fused.rms_m, raw_gps_rms_m=e.raw_gps.rms_m, output_share=share,
+        recovery_fixes=fixes_to_recover(drive, estimates, outage.end_s,
+                                        2.0 * e.raw_gps.rms_m) if outage else None)
 
 
 def _worst(values: list[float], bounds: tuple[float, float]) -> float:

@@ -12,6 +12,7 @@ from navsvc.sim.scorecard import (
     Scorecard,
     check,
     consistency,
+    fixes_to_recover,
     max_error_with_gps_m,
     output_share,
     score,
@@ -82,3 +83,17 @@ def test_a_drive_without_output_fails_the_ratio_instead_of_dropping_out() -> Non
     verdicts = {name: (worst, met) for name, _, worst, _, met in
                 check([_card(0.5, 1.5, 0.95, 20.0), silent])}
     assert verdicts["fused_to_raw_ratio"] == (math.inf, False)
+
+
+def test_fixes_to_recover_count_the_fixes_after_the_outage_until_the_estimate_is_back() -> None:
+    estimates = [_estimate(8.0, 30.0, 1.0), _estimate(9.0, 5.0, 1.0),
+                 _estimate(10.0, 1.0, 1.0)]
+    assert fixes_to_recover(DRIVE, estimates, 3.0, 10.0) == 2.0  # 8 s: 30 m; 9 s: 5 m
+    assert fixes_to_recover(DRIVE, estimates, 3.0, 0.5) == math.inf  # never that close
+    assert fixes_to_recover(DRIVE, estimates, 10.0, 10.0) is None  # no fix after 10 s
+
+
+def test_fixes_faster_than_one_a_second_count_once_a_second() -> None:
+    drive = [*DRIVE, *(_at(8.0 + k / 10.0, kind="gps") for k in range(1, 10))]  # 10 Hz
+    estimates = [_estimate(8.0 + k / 10.0, 30.0 if k < 10 else 5.0, 1.0) for k in range(11)]
+    assert fixes_to_recover(drive, estimates, 3.0, 10.0) == 2.0
