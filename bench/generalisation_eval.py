@@ -185,7 +185,7 @@ def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, b
 
 def _cards(rows: list[dict[str, Any]]) -> list[Scorecard]:
     fields = Scorecard.__dataclass_fields__
-    return [Scorecard(**{k: r[k] for k in fields if k in r}) for r in rows]
+    return [Scorecard(**{k: r[k] for k in fields}) for r in rows]
 
 
 def _values(rows: list[dict[str, Any]], key: str) -> list[float]:

@@ -801,7 +801,8 @@ class RoadFilter:
         z, h, H, R = GpsPosition(east, north, sigma).model(s.x)
         y = z - h
         nis = kalman.nis(s.P, H, R, y)
-        self._remember_paths(fix.t, z, self._dead_reckon(fix.t), nis)
+        if not self.profile.gps_alone:  # without dead reckoning no path to turn
+            self._remember_paths(fix.t, z, self._dead_reckon(fix.t), nis)
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
             refused = self._position_past_gate(fix, (east, north), (z, h, H, R), nis,
                                                (sigma, sigma_learnt), dt_s)
@@ -993,12 +994,11 @@ class RoadFilter:
         such rule: default (600 drives) that drive better, no other changed; with ten fixes,
         steering, gyro_accel and gyro_two_accels ekf (120 each) one drive better each (19.0
         -> 8.6x, 3.5 -> 1.4x, 5.3 -> 1.4x), none worse, and the same with seven (24 drives
-        a map). Five fixes made a
-        non-line-of-sight run changing as the car turned look turned (Andorra 27: 0.25 ->
-        1.9x); the estimate's own positions (not the dead-reckoned path) hold the pulls of
-        down-weighted fixes and turned nothing right."""
+        a map). Five fixes made a non-line-of-sight run changing as the car turned look
+        turned (Andorra 27: 0.25 -> 1.9x); the estimate's own positions (not the
+        dead-reckoned path) hold the pulls of down-weighted fixes and turned nothing right."""
         s, cfg = self.state, self.config
-        if len(s.paths) < cfg.turned_path_min_fixes or self.profile.gps_alone:
+        if len(s.paths) < cfg.turned_path_min_fixes:
             return None
         paths = np.array(s.paths)
         turn = turn_between_paths(paths[:, 3:5], paths[:, 1:3], sigma_m)
