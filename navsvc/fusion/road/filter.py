@@ -1002,12 +1002,11 @@ class RoadFilter:
             return None
         paths = np.array(s.paths)
         turn = turn_between_paths(paths[:, 3:5], paths[:, 1:3], sigma_m)
-        if abs(turn.angle_rad) < max(cfg.turned_path_min_rad,
-                                     3.0 * math.sqrt(turn.variance_rad2)) or \
-                turn.misfit_m > cfg.turned_path_misfit_sigmas * sigma_m or \
-                turn.shift_misfit_m < cfg.turned_path_shift_misfit_m:
-            return None
-        return turn
+        turned = abs(turn.angle_rad) >= max(cfg.turned_path_min_rad,
+                                            3.0 * math.sqrt(turn.variance_rad2)) and \
+            turn.misfit_m <= cfg.turned_path_misfit_sigmas * sigma_m and \
+            turn.shift_misfit_m >= cfg.turned_path_shift_misfit_m  # each False for a NaN
+        return turn if turned else None
 
     def _follow_turned_path(self, fix: GpsFix, z: Array, turn: PathTurn, nis: float
                             ) -> None:
