@@ -133,6 +133,8 @@ class RoadState:
     # errors then: (value, variance) of each of CALIBRATED
     followed_jump: tuple[float, float, float] | None = None  # (t, east, north): a jump of
     # the fixes that the filter ended up following (perhaps a non-line-of-sight run)
+    jumped_back: tuple[float, float, float] | None = None  # (t, east, north): the
+    # innovation of a fix that jumped back from it, waiting for the next to agree
     still_fixes: tuple[int, float, float, float] = (0, 0.0, 0.0, 0.0)  # before start-up, fixes
     # while the odometer says the car stands: (count, mean east, mean north, time of the
     # latest) since the last jump
@@ -854,11 +856,12 @@ class RoadFilter:
         if turn is not None:
             self._follow_turned_path(fix, z, turn, nis)
             return False
-        if self._jumps_back(fix.t, y, sigma):
+        back = self._jumps_back(fix.t, y, sigma, self._split_sigma(sigma_learnt)[0])
+        if back is not None:
             # the bias states took up part of the jump the filter followed: that was the
             # jump's error, not a slowly changing one (left there, it kept the estimate 25 m
             # off for a minute)
-            self._follow_jump(fix, z, "re-acquired: the fixes jumped back", nis)
+            self._follow_jump(fix, z + back, "re-acquired: the fixes jumped back", nis)
             return False
         if self._jumped(fix.t, nis, y, sigma):
             if self._map_prefers_jump(fix.t, y):
@@ -1149,18 +1152,30 @@ class RoadFilter:
         jump = self.state.followed_jump
         return jump is not None and t - jump[0] <= self.config.max_jump_s
 
-    def _jumps_back(self, t: float, innovation: Array, sigma_m: float) -> bool:
+    def _jumps_back(self, t: float, innovation: Array, sigma_m: float, white_m: float
+                    ) -> Array | None:
         """The fixes jump back by about a jump the filter followed not long ago: that jump
-        was a non-line-of-sight run, and this is the track again."""
+        was a non-line-of-sight run, and this is the track again. Two fixes in a row must
+        say so, within ``3 sqrt(2)`` of a fix's white sigma (``white_m``) of each other:
+        urban fixes that swing 25 m in a second jumped "back" onto a fix 29 m off, and the
+        filter restarted there (gh-issue-70 333 of the tune split, 1.6x raw GPS). The
+        shift from this fix to the two fixes' mean when they do, else None."""
         s = self.state
         if s.followed_jump is None or not self._recent_jump(t):
-            return False
+            return None
         back = math.hypot(innovation[0] + s.followed_jump[1],
                           innovation[1] + s.followed_jump[2])
         if back > max(3.0 * sigma_m, 0.3 * math.hypot(*s.followed_jump[1:])):
-            return False
-        s.followed_jump = None
-        return True
+            s.jumped_back = None
+            return None
+        previous, s.jumped_back = s.jumped_back, (t, float(innovation[0]), float(innovation[1]))
+        if previous is None or t - previous[0] > self.config.track_gap_s:
+            return None
+        shift = (np.array(previous[1:]) - innovation[:2]) / 2.0
+        if math.hypot(*shift) > 1.5 * math.sqrt(2.0) * white_m:
+            return None
+        s.followed_jump = s.jumped_back = None
+        return shift
 
     def _jumped(self, t: float, nis: float, innovation: Array, sigma_m: float) -> bool:
         """Refuse a fix outright (no pull, no widening) as part of a jump: the filter had
@@ -1468,7 +1483,8 @@ class RoadFilter:
                 s.first_gated_t = None
                 return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the "
                                    "estimate's own uncertainty covers the fix")
-            if self._jumps_back(fix.t, innovation, sigma_m):
+            if self._jumps_back(fix.t, innovation, sigma_m,
+                                self._split_sigma(sigma_m)[0]) is not None:
                 s.first_gated_t = None
                 return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0,
                                    "re-acquired: the fixes jumped back")
