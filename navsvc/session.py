@@ -64,7 +64,7 @@ from navsvc.types import (
 from navsvc.wire import bulk
 from navsvc.wire.packets import parse_record
 from navsvc.wire.positions import position_json
-from roadgraph import LocalFrame, RoadGraph
+from roadgraph import EdgeKey, LocalFrame, RoadGraph
 from roadgraph.geometry import wrap_angle_rad
 
 log = logging.getLogger(__name__)
@@ -394,8 +394,12 @@ class VehicleSession:
         e, c = p.estimate, self.config
         if self._last_feedback_t is not None and e.t - self._last_feedback_t < 1.0:
             return
-        self.engine.correct_to_road(p.x_m, p.y_m, p.road_bearing_rad, c.feedback_sigma_across_m,
-                                    c.feedback_sigma_heading_rad)
+        assert self.matcher is not None and p.edge is not None
+        share = self.matcher.road_share(e, EdgeKey(p.edge.u, p.edge.v, p.edge.key))
+        widen = feedback_sigma_scale(share)
+        self.engine.correct_to_road(p.x_m, p.y_m, p.road_bearing_rad,
+                                    c.feedback_sigma_across_m * widen,
+                                    c.feedback_sigma_heading_rad * widen)
         self._last_feedback_t = e.t
 
 
@@ -420,6 +424,22 @@ def feedback_wanted(p: MatchedPosition, c: SessionConfig) -> bool:
     gate_m = c.feedback_gate_sigmas * math.hypot(e.position_sigma_m, c.feedback_sigma_across_m)
     return distance_m <= max(c.feedback_max_distance_m, gate_m) and \
         abs(wrap_angle_rad(e.heading_rad - bearing)) <= math.radians(20.0)
+
+
+def feedback_sigma_scale(road_share: float) -> float:
+    """How much wider the feedback's sigmas are for a matched road that other roads beside
+    the estimate rival (:meth:`OnlineMatcher.road_share`): not at all while it holds at
+    least half their likelihood (in a dense map the road driven usually has others beside
+    it), else ``1 / sqrt(2 share)``: the estimate has drifted nearer another road than the
+    one matched, and the match is a measurement only that likely (as in probabilistic data
+    association). Held to its road at full weight, an estimate after an outage sat on a road
+    20 m from the one driven for a minute while the fixes, 3 m off, were taken as a bias
+    (Stockholm 585 of the tune split: 0.85 -> 0.19x raw GPS, outage drift 6.9 -> 0.8 %).
+    Tune split, 600 drives: mean log fused/raw -0.2 % (4 better, 5 worse by more than 2 %),
+    drives with drift over 4 % 7 -> 6, with a matched error over 50 m 12 -> 11. Widening by
+    ``1 / sqrt(share)`` at every share: -0.1 %, but 31 better and 46 worse (dense Monaco
+    lost the pull that held its outages); widening the heading's sigma alone: no change."""
+    return 1.0 if road_share >= 0.5 else 1.0 / math.sqrt(2.0 * max(road_share, 1e-12))
 
 
 class SessionOptions(BaseModel):

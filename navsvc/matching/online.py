@@ -313,6 +313,21 @@ class OnlineMatcher:
         return math.exp(-0.5 * proj.distance_m ** 2 / sigma_d2
                         - 0.5 * (angle_error_rad / sigma_h) ** 2)
 
+    def road_share(self, e: FusedEstimate, edge: EdgeKey) -> float:
+        """The share of ``edge`` in the likelihood (distance and heading, as at start-up) of
+        the roads beside the estimate: 1 when no other could be the one driven, a half when
+        another fits as well. A road whose end only lies near (the next edge of the same
+        street) is not beside it."""
+        c = self.config
+        proj = self.graph.project(edge, e.x_m, e.y_m)
+        matched = self._likelihood(e, proj, self._heading_error(e, proj))
+        total = matched
+        radius = 3.0 * math.hypot(c.road_sigma_m, e.tracking_sigma_m)
+        for other in self.graph.edges_near(e.x_m, e.y_m, radius):
+            if other.edge != edge and 0.0 < other.offset_m < other.length_m:
+                total += self._likelihood(e, other, self._heading_error(e, other))
+        return matched / total if total > 0.0 else 0.0
+
     def _on_road(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition:
         return self._position(e, proj, MatchState.ON_ROAD)
 

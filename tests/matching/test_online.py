@@ -9,7 +9,7 @@ import pytest
 from navsvc.errors import ConfigError
 from navsvc.matching.online import MatcherConfig, OnlineMatcher
 from navsvc.types import FusedEstimate, MatchedPosition, MatchState
-from roadgraph import RoadGraph
+from roadgraph import EdgeKey, RoadGraph
 from tests.roadgraph.test_graph import FRAME, cross_graph
 
 X0, Y0 = FRAME.to_local(7.42, 43.73)
@@ -246,3 +246,34 @@ def test_an_estimate_that_jumps_to_a_road_nearby_is_matched_there_at_once(
     assert edge_of(p) == (0, 1)
     jumped = matcher.update(estimate(2.0, 20.5, -84.0, 0.0, sigma_m=3.0))
     assert edge_of(jumped) == ((2, 3) if restarts else (0, 1))
+
+
+def _two_streets(gap_m: float) -> RoadGraph:
+    """Two parallel streets running north, ``gap_m`` apart, each of two 100 m edges."""
+    g = nx.MultiDiGraph()
+    for n, (dx, dy) in {0: (0, -100), 1: (0, 0), 2: (0, 100),
+                        3: (gap_m, -100), 4: (gap_m, 0), 5: (gap_m, 100)}.items():
+        g.add_node(n, x=X0 + dx, y=Y0 + dy)
+    for u, v in ((0, 1), (1, 2), (3, 4), (4, 5)):
+        g.add_edge(u, v, name="street")
+    return RoadGraph.from_networkx(g, FRAME)
+
+
+def test_road_share_is_whole_when_no_other_road_could_be_the_one_driven() -> None:
+    """Alone beside its street (the next edge of the same street, ahead, does not count)."""
+    graph = _two_streets(80.0)
+    matcher = OnlineMatcher(graph)
+    on_first_edge = estimate(0.0, 1.0, -2.0, 0.0)  # 2 m before the street's middle node
+    assert matcher.road_share(on_first_edge, EdgeKey(0, 1, 0)) == pytest.approx(1.0)
+
+
+def test_road_share_halves_between_two_streets_and_follows_the_nearer() -> None:
+    graph = _two_streets(10.0)
+    matcher = OnlineMatcher(graph)
+    between = estimate(0.0, 5.0, -50.0, 0.0)
+    assert matcher.road_share(between, EdgeKey(0, 1, 0)) == pytest.approx(0.5, abs=1e-6)
+    nearer_west = estimate(0.0, 2.0, -50.0, 0.0)
+    west, east = EdgeKey(0, 1, 0), EdgeKey(3, 4, 0)
+    assert matcher.road_share(nearer_west, west) > 0.5 > matcher.road_share(nearer_west, east)
+    assert matcher.road_share(nearer_west, west) + \
+        matcher.road_share(nearer_west, east) == pytest.approx(1.0)
