@@ -395,8 +395,11 @@ class VehicleSession:
         if self._last_feedback_t is not None and e.t - self._last_feedback_t < 1.0:
             return
         assert self.matcher is not None and p.edge is not None
-        share = self.matcher.road_share(e, EdgeKey(p.edge.u, p.edge.v, p.edge.key))
-        widen = feedback_sigma_scale(share)
+        widen = 1.0
+        if c.fusion.gps_mode == GpsMode.EKF:  # the weighted modes' fixes pull too little
+            # to choose between rival roads; there the map alone holds the estimate
+            share = self.matcher.road_share(e, EdgeKey(p.edge.u, p.edge.v, p.edge.key))
+            widen = feedback_sigma_scale(share)
         self.engine.correct_to_road(p.x_m, p.y_m, p.road_bearing_rad,
                                     c.feedback_sigma_across_m * widen,
                                     c.feedback_sigma_heading_rad * widen)
