@@ -668,6 +668,41 @@ def test_weighted_modes_restart_from_fixes_beyond_any_non_line_of_sight_error() 
         assert err < 5.0, (mode, err)
 
 
+def _rules_pull_after_a_gap(offset_m: float, gap_s: float) -> tuple[float, float]:
+    """The rules mode, the same drive with a gap of ``gap_s`` in the fixes: the east pull of
+    the first fix after it, lying ``offset_m`` east, and the estimate's sigma east before
+    it."""
+    gap = (100.0 - gap_s, 100.0)
+    packets = [p for p in _drive(110.0, [(gap[1], gap[1] + 0.5, offset_m)], noise_m=0.0)
+               if not (isinstance(p, GpsFix) and gap[0] <= p.t < gap[1])]
+    road = RoadFilter(FusionConfig(gps_mode=GpsMode.RULES), FRAME)
+    for p in packets:
+        if isinstance(p, GpsFix) and p.t == gap[1]:
+            before, sigma_m = road.state.x[0], math.sqrt(road.state.P[0, 0])
+            road.apply(p)
+            return road.state.x[0] - before, sigma_m
+        road.apply(p)
+    raise AssertionError("no fix after the gap")
+
+
+def test_rules_after_a_gap_a_fix_within_the_estimates_uncertainty_pulls_for_the_gap() -> None:
+    """The thesis's weight per second, compounded over the 60 s without fixes: the first
+    fix after them pulls most of the way when the estimate's own uncertainty covers it."""
+    _, sigma_m = _rules_pull_after_a_gap(0.0, 60.0)
+    pull_m, _ = _rules_pull_after_a_gap(sigma_m, 60.0)
+    assert pull_m > 0.8 * sigma_m
+
+
+def test_rules_after_a_gap_a_fix_past_the_gate_pulls_as_one_fix() -> None:
+    """... but a fix far past it (a non-line-of-sight fix after an outage) pulls as one
+    fix (4 %), not as the seconds without fixes (34 % for 10 s, 91 % for 60 s): it had
+    pulled an estimate 17 m onto a fix 23 m off (Stockholm 15 of the tune split, rules:
+    4.9x raw GPS; 0.8x with this)."""
+    pull_m, sigma_m = _rules_pull_after_a_gap(30.0, 10.0)
+    assert 30.0 > 5.0 * sigma_m  # far past the gate
+    assert 0.0 < pull_m < 0.05 * 30.0
+
+
 # east error (m) of 2 Hz fixes from t = 6 s: a replayed urban-canyon start-up (UrbanNav's
 # error on Stockholm 465 of the tune split), leaping 28 m east and back at the standstill,
 # then sweeping 40 m east in 3 s as the car pulls away north

@@ -1436,9 +1436,13 @@ class RoadFilter:
         distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
         speed = self._weighted_speed(fix)
         if cfg.gps_mode == GpsMode.RULES:
+            # the thesis's weight a second, compounded over a gap without fixes only for a
+            # fix the estimate's own uncertainty covers; one past the gate (a
+            # non-line-of-sight fix after an outage) pulls as one fix
+            weigh_s = dt_s if nis <= kalman.gate_limit(2) else min(dt_s, 1.0)
             decision = decide_rules(cfg.rules, gps_ok=True, initialized=True,
                                     distance_m=distance, gps_speed_mps=speed,
-                                    rejected_fixes=s.gated_fixes, dt_s=dt_s)
+                                    rejected_fixes=s.gated_fixes, dt_s=weigh_s)
         else:
             pos_w, head_w = fuzzy_weights(cfg.fuzzy, distance, speed, s.gated_fixes)
             action = GpsAction.REINITIALIZE if pos_w > 0.99 else \
