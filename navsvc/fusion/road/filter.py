@@ -1171,11 +1171,11 @@ class RoadFilter:
         previous, s.jumped_back = s.jumped_back, (t, float(innovation[0]), float(innovation[1]))
         if previous is None or t - previous[0] > self.config.track_gap_s:
             return None
-        shift = (np.array(previous[1:]) - innovation[:2]) / 2.0
-        if math.hypot(*shift) > 1.5 * math.sqrt(2.0) * white_m:
+        apart = np.array(previous[1:]) - innovation[:2]
+        if math.hypot(*apart) > 3.0 * math.sqrt(2.0) * white_m:
             return None
         s.followed_jump = s.jumped_back = None
-        return shift
+        return apart / 2.0
 
     def _jumped(self, t: float, nis: float, innovation: Array, sigma_m: float) -> bool:
         """Refuse a fix outright (no pull, no widening) as part of a jump: the filter had
