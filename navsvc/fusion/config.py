@@ -49,6 +49,9 @@ class FusionConfig:
     gps_bias_max_sigmas: float = 6.0  # ekf: the bias states never hold more than this many
     # of their steady sigmas (a fix that far off is a jump, not a slowly changing error)
     gps_bias_tau_s: float = 30.0  # ekf: its time constant (receivers: 10-60 s)
+    held_bias_wander: float = 0.3  # ekf: while the bias states hold the leap of a start
+    # between two tracks, they wander with this share of the half leap as steady sigma,
+    # within half the half leap (tuned: tune split)
     track_gap_s: float = 3.0  # ekf: fixes further apart than this break the GPS track
     track_settled_s: float = 3.0  # ekf: a track this long is trusted over a sudden jump
     track_confirm_nis: float = 2.0  # ekf with dead reckoning: a fix this close (NIS) to the

@@ -202,6 +202,27 @@ def test_a_non_line_of_sight_run_begun_before_start_up_while_moving_is_left_when
     assert _starts_halfway_and_leaves_the_run_at_its_end(STILL_S + 1.5, 52.0) > STILL_S + 1.5
 
 
+def test_a_held_run_that_ends_slowly_goes_into_the_bias_states_not_refused() -> None:
+    """The fixes leap 50 m east at the standstill and, from 40 s, come back 2.5 m a second;
+    map feedback holds the car on its road (east 0), so the bias states hold the run's
+    offset. The bias states wander while they hold it: the fixes coming back are taken as
+    the bias doing so, not refused as a jump for ten seconds while the position stays on
+    the road (gh-issue-13 399 of the tune split)."""
+    jumps = [(5.0, 40.0, 50.0)] + [(40.0 + k, 41.0 + k, 50.0 - 2.5 * (k + 1))
+                                   for k in range(20)]
+    road = RoadFilter(FusionConfig(), FRAME)
+    returning = []  # (east m, bias east m, GPS reason) while the fixes come back
+    for p in _drive(80.0, jumps, accuracy_m=3.0):
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and e.gps is not None and 40.0 <= p.t <= 60.0:
+                returning.append((e.x_m, road.state.x[GPS_BIAS_E], e.gps.reason))
+        if isinstance(p, GpsFix) and road.state.initialized and p.t > STILL_S + 2.0:
+            road.correct(RoadConstraint(0.0, road.state.x[1], 0.0, 2.0, math.radians(5.0)))
+    assert sum(reason.startswith("refused") for _, _, reason in returning) <= 3, returning
+    assert all(abs(east) < 5.0 for east, _, _ in returning), returning
+    assert abs(returning[-1][1]) < 2.0 * 3.0, returning  # the bias followed the fixes back
+
+
 def test_start_up_waits_out_a_fix_that_leapt_from_the_one_before() -> None:
     """The first fix once moving lies 40 m east of the track, with the receiver's course:
     the filter does not start on it (the odometer drove 10 m since the fix before) but once

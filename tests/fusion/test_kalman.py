@@ -109,3 +109,34 @@ def test_a_repeated_measurement_never_makes_the_state_surer_than_itself(
         x, P, _ = kalman.correct(x, P, np.zeros(1), H @ x, H, kalman.no_surer_than(P, H, R),
                                  np.inf)
         assert H[0] @ P @ H[0] >= min(R[0, 0], before) * (1.0 - 1e-6)
+
+
+@given(st.floats(0.01, 120.0), st.floats(1.0, 100.0), st.floats(0.1, 30.0),
+       st.floats(-40.0, 40.0))
+def test_a_held_gps_bias_keeps_its_value_and_grows_as_the_process_would(
+        dt_s: float, tau_s: float, sigma_m: float, bias_m: float) -> None:
+    """Held (a start between two tracks), the GPS bias keeps its value and its covariance
+    with the rest, and its variance grows by what a Gauss-Markov process of the same
+    ``tau`` and ``sigma`` adds, up to the held sigma (never shrinking to it); not held, it
+    decays toward zero."""
+    x = np.zeros(motion.N_STATES)
+    x[list(motion.GPS_BIAS)] = bias_m
+    P = np.eye(motion.N_STATES)
+    P[motion.X_M, motion.GPS_BIAS_E] = P[motion.GPS_BIAS_E, motion.X_M] = -0.5
+    held_x, held_P = x.copy(), P.copy()
+    motion.propagate_gps_bias(held_x, held_P, dt_s, tau_s, sigma_m, held_within_m=1e3)
+    grown = sigma_m ** 2 * (1.0 - np.exp(-2.0 * dt_s / tau_s))
+    assert np.array_equal(held_x, x)
+    assert held_P[motion.GPS_BIAS_E, motion.GPS_BIAS_E] == pytest.approx(1.0 + grown)
+    assert held_P[motion.X_M, motion.GPS_BIAS_E] == -0.5
+    for within_m in (0.5, 1.0 + 0.5 * grown):
+        capped_P = P.copy()
+        motion.propagate_gps_bias(x.copy(), capped_P, dt_s, tau_s, sigma_m,
+                                  held_within_m=within_m)
+        assert capped_P[motion.GPS_BIAS_N, motion.GPS_BIAS_N] == pytest.approx(
+            max(1.0, min(1.0 + grown, within_m ** 2)))
+    decayed_x, decayed_P = x.copy(), P.copy()
+    motion.propagate_gps_bias(decayed_x, decayed_P, dt_s, tau_s, sigma_m)
+    assert abs(decayed_x[motion.GPS_BIAS_E]) <= abs(bias_m)
+    assert decayed_P[motion.GPS_BIAS_E, motion.GPS_BIAS_E] == pytest.approx(
+        np.exp(-2.0 * dt_s / tau_s) + grown)

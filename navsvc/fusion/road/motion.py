@@ -71,18 +71,25 @@ class ProcessNoise:
 
 
 def propagate_gps_bias(x: Array, P: Array, dt_s: float, tau_s: float,
-                       sigma_m: float) -> None:
+                       sigma_m: float, held_within_m: float | None = None) -> None:
     """The GPS bias states ``dt_s`` on, in place: first-order Gauss-Markov with time
     constant ``tau_s`` and steady sigma ``sigma_m``. The inertial-rate predictions leave them
     alone (their transition is a scalar times the identity, which commutes with the rest),
-    so this one step at a fix is exact."""
+    so this one step at a fix is exact. ``held_within_m``: the value is held (no decay toward
+    zero), but its variance grows as the process's would, up to this sigma (an offset held
+    with its spread that still wanders within it)."""
     decay = math.exp(-max(dt_s, 0.0) / tau_s)
+    grown = sigma_m ** 2 * (1.0 - decay ** 2)
+    if held_within_m is not None:
+        for i in GPS_BIAS:
+            P[i, i] = max(P[i, i], min(P[i, i] + grown, held_within_m ** 2))
+        return
     idx = list(GPS_BIAS)
     x[idx] *= decay
     P[idx, :] *= decay
     P[:, idx] *= decay
     for i in GPS_BIAS:
-        P[i, i] += sigma_m ** 2 * (1.0 - decay ** 2)
+        P[i, i] += grown
 
 
 def propagate(x: Array, dt_s: float, accel_fwd_mps2: float | None,
