@@ -49,6 +49,8 @@ class FusionConfig:
     gps_bias_max_sigmas: float = 6.0  # ekf: the bias states never hold more than this many
     # of their steady sigmas (a fix that far off is a jump, not a slowly changing error)
     gps_bias_tau_s: float = 30.0  # ekf: its time constant (receivers: 10-60 s)
+    leap_onset_share: float = 0.85  # ekf: a start between two tracks lies this share of
+    # the way back to the fixes before their leap (most leaps start a run; tune split)
     held_bias_wander: float = 0.3  # ekf: while the bias states hold the leap of a start
     # between two tracks, they wander with this share of the half leap as steady sigma,
     # within half the half leap (tuned: tune split)

@@ -160,46 +160,49 @@ def test_a_start_inside_a_non_line_of_sight_run_is_left_when_the_map_says_so() -
     assert all(err < 5.0 for _, err, _ in back[taken:]), back
 
 
-def _starts_halfway_and_leaves_the_run_at_its_end(start_s: float, end_s: float) -> float:
-    """Fixes (3 m) 50 m east from ``start_s`` to ``end_s``: the filter starts halfway with a
-    sigma that holds either track, stays there while the run lasts, and follows the fixes'
-    leap back at the second fix that says so (within twice their sigma after it). The
-    start's time."""
+def _starts_between_and_leaves_the_run_at_its_end(start_s: float, end_s: float) -> float:
+    """Fixes (3 m) 50 m east from ``start_s`` to ``end_s``: the filter starts between the
+    two tracks, ``leap_onset_share`` of the way back to the one before the leap (most leaps
+    start a run), with a variance along the leap that holds the run's track within 2.45
+    sigma; it stays there while the run lasts, and follows the fixes' leap back at the
+    second fix that says so (within twice their sigma after it). The start's time."""
     road = RoadFilter(FusionConfig(), FRAME)
-    start: list[tuple[float, float, float]] = []  # (t, east, sigma) at the first fix
-    fixes = []
+    start: list[tuple[float, float, float]] = []  # (t, east, sigma east) at the first fix
+    fixes = []  # (t, east, error, GPS reason)
     for p in _drive(120.0, [(start_s, end_s, 50.0)], accuracy_m=3.0):
         for e in road.apply(p):
             if isinstance(p, GpsFix) and e.gps is not None:
                 if not start:
-                    start.append((p.t, e.x_m, e.position_sigma_m))
-                fixes.append((p.t, math.hypot(e.x_m, e.y_m - _north_m(p.t)), e.gps.reason))
-    t0, east_m, sigma_m = start[0]
-    assert 20.0 < east_m < 30.0 and 2.45 * sigma_m >= 25.0  # either track within 2.45 sigma
-    assert all(20.0 < err < 30.0 for t, err, _ in fixes if t < end_s)
+                    start.append((p.t, e.x_m, math.sqrt(road.state.P[0, 0])))
+                fixes.append((p.t, e.x_m, math.hypot(e.x_m, e.y_m - _north_m(p.t)),
+                              e.gps.reason))
+    t0, east_m, sigma_east_m = start[0]
+    between_m = (1.0 - FusionConfig().leap_onset_share) * 50.0
+    assert abs(east_m - between_m) < 6.0 and 2.45 * sigma_east_m >= 50.0 - east_m
+    assert all(0.0 < east < between_m + 8.0 for t, east, _, _ in fixes if t < end_s)
     back = [f for f in fixes if f[0] >= end_s]
-    assert back[0][2] != back[1][2] == "re-acquired: the fixes jumped back"  # two agree
-    assert all(err < 2.0 * 3.0 for _, err, _ in back[1:]), back
+    assert back[0][3] != back[1][3] == "re-acquired: the fixes jumped back"  # two agree
+    assert all(err < 2.0 * 3.0 for _, _, err, _ in back[1:]), back
     return t0
 
 
 def test_a_non_line_of_sight_run_begun_at_the_standstill_is_left_when_it_ends() -> None:
     """The fixes leap 50 m east while the car still stands (5 s in) and leap back 35 s
-    later: no map says which side is right, so the filter starts halfway, with a sigma that
-    holds either side, stays there (the GPS bias states hold the leap, not decaying to the
-    fixes), and follows their leap back once two fixes say so (the leap at a standstill was
-    a change of their error)."""
-    _starts_halfway_and_leaves_the_run_at_its_end(5.0, 40.0)
+    later: no map says which side is right, so the filter starts between them, with a
+    sigma that holds either side, stays there (the GPS bias states hold the leap, not
+    decaying to the fixes), and follows their leap back once two fixes say so (the leap at
+    a standstill was a change of their error)."""
+    _starts_between_and_leaves_the_run_at_its_end(5.0, 40.0)
 
 
 def test_a_non_line_of_sight_run_begun_before_start_up_while_moving_is_left_when_it_ends(
 ) -> None:
     """The car drives off; before the heading's baseline is long enough the fixes leap 50 m
     east (farther than the odometer drove since the fix before) and leap back 40 s later:
-    as with a leap at a standstill, the filter starts halfway, stays there, and follows the
-    leap back. It had started on the leapt fixes, 50 m off (Andorra 257 of the
+    as with a leap at a standstill, the filter starts between the tracks, stays there, and
+    follows the leap back. It had started on the leapt fixes, 50 m off (Andorra 257 of the
     tune split: 67 m)."""
-    assert _starts_halfway_and_leaves_the_run_at_its_end(STILL_S + 1.5, 52.0) > STILL_S + 1.5
+    assert _starts_between_and_leaves_the_run_at_its_end(STILL_S + 1.5, 52.0) > STILL_S + 1.5
 
 
 def test_a_held_run_that_ends_slowly_goes_into_the_bias_states_not_refused() -> None:
