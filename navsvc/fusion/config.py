@@ -100,6 +100,8 @@ class FusionConfig:
     # (the odometer's distance; without one, the ends' distance)
     initial_heading_min_move_sigmas: float = 4.0  # ... and this many fix sigmas long
     initial_heading_max_baseline_s: float = 10.0  # ... and at most this long apart
+    initial_heading_max_distance_misfit: float = 0.5  # ... with the fixes moving along it
+    # within this share of the odometer's distance (tuned: tune split)
     initial_heading_max_turn_rad: float = math.radians(10.0)  # ... with less turn between
     weighted_reacquire_after_s: float = 30.0  # rules, fuzzy: fixes far from the estimate
     # this long restart it from GPS (a restart onto a non-line-of-sight run is undone when

@@ -99,6 +99,7 @@ class TrackFit:
     heading_rad: float  # clockwise from north
     variance_rad2: float
     agrees: bool  # the fixes lie where the odometer's distances put them, within their error
+    distance_ratio: float = 1.0  # metres the fixes moved along the line per odometer metre
 
 
 def fit_track(fixes: tuple[tuple[float, float, float, float], ...],
@@ -135,22 +136,30 @@ def fit_track(fixes: tuple[tuple[float, float, float, float], ...],
     variance = sigma_m ** 2 / spread_m2
     agrees = bool(np.all(misfit_m <= 3.0 * sigma_m + 0.1 * np.abs(e))) and \
         abs(slope - 1.0) <= 3.0 * math.sqrt(variance) + 0.1
-    return TrackFit(math.atan2(float(u[0]), float(u[1])) % (2.0 * math.pi), variance, agrees)
+    return TrackFit(math.atan2(float(u[0]), float(u[1])) % (2.0 * math.pi), variance, agrees,
+                    slope)
 
 
 def baseline_heading(fit: TrackFit | None, ends: tuple[float, float, float, float],
                      travelled_m: float, spread_m: float, min_move_m: float,
-                     min_move_sigmas: float) -> tuple[float, float] | None:
+                     min_move_sigmas: float, max_distance_misfit: float = math.inf
+                     ) -> tuple[float, float] | None:
     """A start-up heading (clockwise from north) and its variance from a baseline of fixes,
     once it is ``min_move_m`` and ``min_move_sigmas`` of the fixes' spread long: with an
     odometer, the fit (:func:`fit_track`), once the odometer drove that far (the fixes' own
     distance is no baseline: a fix 22 m off after a few metres driven made one, and the
-    heading started with a sigma of 600 degrees); without one, the bearing between the
-    baseline's ends ``(east, north, east, north)``, once they lie that far apart. None
-    before. Both filters start so."""
+    heading started with a sigma of 600 degrees) and while the fixes moved along the line
+    within ``max_distance_misfit`` (a share) of the distance it drove: a non-line-of-sight
+    ramp swept urban fixes across the drive, 8 m along it in 21 m driven, and the heading
+    started 126 degrees off, which the fit's own test (3 of its sigmas, 0.3 at that
+    baseline) let through (gh-issue-70 168 of the tune split). Without an odometer, the
+    bearing between the baseline's ends ``(east, north, east, north)``, once they lie that
+    far apart. None before. Both filters start so."""
     need_m = max(min_move_m, min_move_sigmas * spread_m)
     if fit is not None:
-        return (fit.heading_rad, fit.variance_rad2) if travelled_m >= need_m else None
+        if travelled_m < need_m or abs(fit.distance_ratio - 1.0) > max_distance_misfit:
+            return None
+        return fit.heading_rad, fit.variance_rad2
     moved_m = math.hypot(ends[2] - ends[0], ends[3] - ends[1])
     return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= need_m else None
 

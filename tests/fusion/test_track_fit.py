@@ -9,7 +9,7 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from navsvc.fusion.gnss import fit_track
+from navsvc.fusion.gnss import baseline_heading, fit_track
 
 Fix = tuple[float, float, float, float]
 
@@ -66,3 +66,28 @@ def test_fixes_running_faster_than_the_odometer_drove_are_no_heading() -> None:
 def test_fixes_that_span_no_distance_say_nothing_of_the_heading() -> None:
     for fit in (fit_track(_line(0.0, [0.0]), 3.0), fit_track(_line(0.0, [5.0, 5.0, 5.0]), 3.0)):
         assert fit.variance_rad2 == math.inf and fit.agrees
+
+
+@given(st.floats(0.0, 2.0 * math.pi, exclude_max=True), st.floats(0.1, 3.0))
+def test_the_fitted_distance_ratio_is_how_far_the_fixes_moved_per_odometer_metre(
+        heading_rad: float, ratio: float) -> None:
+    distances = [0.0, 5.0, 10.0, 15.0, 20.0]
+    fixes = tuple((t, e, n, d / ratio) for t, e, n, d in _line(heading_rad, distances))
+    assert math.isclose(fit_track(fixes, 3.0).distance_ratio, ratio, rel_tol=1e-9)
+
+
+def test_fixes_that_moved_a_third_of_the_drive_give_no_start_up_heading() -> None:
+    """Fixes sweeping across the drive (a non-line-of-sight ramp, gh-issue-70 168 of the
+    tune split): 8 m along the line in the 21 m the odometer drove. The fit's own test lets
+    it through at this short baseline; the distance misfit does not."""
+    distances = [0.0, 5.0, 10.0, 15.0, 21.0]
+    fixes = tuple((t, e, n, d / (8.0 / 21.0)) for t, e, n, d in
+                  _line(0.3, [d * 8.0 / 21.0 for d in distances]))
+    fit = fit_track(fixes, 3.5)
+    assert fit.agrees and math.isclose(fit.distance_ratio, 8.0 / 21.0)
+    ends = (fixes[0][1], fixes[0][2], fixes[-1][1], fixes[-1][2])
+    assert baseline_heading(fit, ends, 21.0, 5.0, 15.0, 4.0) is not None
+    assert baseline_heading(fit, ends, 21.0, 5.0, 15.0, 4.0, max_distance_misfit=0.5) is None
+    clean = fit_track(_line(0.3, distances), 3.5)
+    assert baseline_heading(clean, ends, 21.0, 5.0, 15.0, 4.0, max_distance_misfit=0.5) \
+        is not None

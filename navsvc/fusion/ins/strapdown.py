@@ -388,7 +388,8 @@ class StrapdownFilter:
         spread = math.sqrt(2.0) * sigma
         found = baseline_heading(fit, (e0, n0, east, north), s.travelled_m, spread,
                                  cfg.initial_heading_min_move_m,
-                                 cfg.initial_heading_min_move_sigmas)
+                                 cfg.initial_heading_min_move_sigmas,
+                                 cfg.initial_heading_max_distance_misfit)
         if found is None or not math.isfinite(found[1]):
             return None
         if s.odo_speed is not None:  # the fit's

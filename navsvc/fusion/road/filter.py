@@ -477,7 +477,8 @@ class RoadFilter:
                 else:
                     heading = baseline_heading(
                         fit, (e0, n0, east, north), s.travelled_m, spread,
-                        cfg.initial_heading_min_move_m, cfg.initial_heading_min_move_sigmas)
+                        cfg.initial_heading_min_move_m, cfg.initial_heading_min_move_sigmas,
+                        cfg.initial_heading_max_distance_misfit)
                     if heading is not None and speed is None:
                         speed = moved / (fix.t - t0), (spread / (fix.t - t0)) ** 2
         if heading is None:
