@@ -205,6 +205,31 @@ def test_a_non_line_of_sight_run_begun_before_start_up_while_moving_is_left_when
     assert _starts_between_and_leaves_the_run_at_its_end(STILL_S + 1.5, 52.0) > STILL_S + 1.5
 
 
+def test_a_leap_that_ended_in_steps_before_start_up_leaves_nothing_behind() -> None:
+    """The fixes leap 40 m south (behind the car) while it stands, and come back as it
+    drives off north, 20 m a second, in steps no single one of which undoes the leap; the
+    receiver's course starts the filter at the next fix. That fix lies as far from the
+    fixes before the leap as the odometer drove, and 40 m farther from the leapt ones: the
+    filter starts on it, not between the two tracks 34 m off (gh-issue-13 129 of the tune
+    split)."""
+    def south_m(t: float) -> float:
+        if 5.0 <= t < STILL_S + 1.0:
+            return 40.0
+        return 20.0 if STILL_S + 1.0 <= t < STILL_S + 2.0 else 0.0
+
+    packets: list[Packet] = []
+    for p in _drive(30.0, [], accuracy_m=3.0):
+        if isinstance(p, GpsFix):
+            east, north = FRAME.to_local(p.lon_deg, p.lat_deg)
+            lon, lat = FRAME.to_wgs84(east, north - south_m(p.t))
+            course = {"speed_mps": SPEED_MPS, "heading_rad": 0.0} if p.t >= STILL_S + 2.0 else {}
+            p = replace(p, lat_deg=lat, lon_deg=lon, **course)
+        packets.append(p)
+    _, fixes = _run(packets)
+    assert fixes[0][2] == "initialised from GPS" and fixes[0][0] <= STILL_S + 4.0
+    assert all(err < 2.0 * 3.0 for _, err, _ in fixes), fixes
+
+
 def test_a_held_run_that_ends_slowly_goes_into_the_bias_states_not_refused() -> None:
     """The fixes leap 50 m east at the standstill and, from 40 s, come back 2.5 m a second;
     map feedback holds the car on its road (east 0), so the bias states hold the run's
