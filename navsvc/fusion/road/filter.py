@@ -1162,20 +1162,20 @@ class RoadFilter:
         return math.inf if self._bias_held(t) else self.config.gps_bias_tau_s
 
     def _propagate_gps_bias(self, t: float) -> None:
-        """The GPS bias states on to ``t``. While they hold a leap, its value stays (no decay
-        toward zero), and once something else (the map) has pinned it below half the leap,
+        """The GPS bias states on to ``t``. While they hold a leap, its value stays (no decay toward
+        zero), and once something else (the map) has pinned it below a quarter of the leap,
         its variance grows again as a Gauss-Markov process's of ``held_bias_wander`` of the
-        half leap, up to that half: a run's offset wanders as the signals' paths change, and
-        the fixes may come back without a leap. Held fixed, a 35 m offset was known to 4 m
-        after the map had pinned the position; the fixes came back over 10 s, and the true
+        half leap, up to that quarter: a run's offset wanders as the signals' paths change,
+        and the fixes may come back without a leap. Held fixed, a 35 m offset was known to
+        4 m after the map had pinned the position; the fixes came back over 10 s, and the true
         ones were refused as a jump or taken as the bias while the estimate sat 35 m off for
         a minute (gh-issue-13 399 of the tune split, 1.58x raw GPS). Tune split, 600 drives:
         mean log fused/raw -0.4 % (12 drives better, 9 worse by more than 2 %; gh-issue-13
         399 1.58 -> 0.38x, the worst gh-issue-13 129 0.57 -> 0.86x); drives above 0.9x
-        13 -> 12, with drift over 4 % 6 -> 5, with a matched error over 50 m 11 -> 10.
-        Growing without that bound, the fixes' own noise moved the estimate halfway
-        between two tracks toward the run's; with a share of 1, Andorra 397 (a run that
-        lasted 45 s) went 0.23 -> 0.98x."""
+        13 -> 12, with drift over 4 % 6 -> 5, with a matched error over 50 m 11 -> 10. Growing
+        without that bound, the fixes' own noise moved the estimate halfway between two
+        tracks toward the run's; with a share of 1, Andorra 397 (a run that lasted 45 s)
+        went 0.23 -> 0.98x."""
         s, cfg = self.state, self.config
         if s.gps_bias_t is not None:
             dt = t - s.gps_bias_t
