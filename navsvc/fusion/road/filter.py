@@ -106,8 +106,8 @@ class RoadState:
     first_fix: tuple[float, float, float, float] | None = None  # (t, x, y, sigma) awaiting a
     # heading
     turned_rad: float = 0.0  # the turn since first_fix (gyro, or steering and odometer)
-    travelled_m: float = 0.0  # the odometer's distance since first_fix
     driven_m: float = 0.0  # the odometer's distance since the filter began
+    baseline_from_m: float = 0.0  # ... at first_fix
     baseline_fixes: tuple[tuple[float, float, float, float], ...] = ()  # the fixes since
     # first_fix, itself the first: (t, east, north, the odometer's distance since first_fix)
     odo_speed_mps: float | None = None  # the odometer's latest speed (start-up, re-acquiring)
@@ -177,6 +177,11 @@ class RoadState:
     # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump) ...
     refused_jump: bool = False  # ... or as a jump away from a close track (one)
     weighted_distance_m: float | None = None  # rules and fuzzy: the last fix's distance
+
+    @property
+    def travelled_m(self) -> float:
+        """The odometer's distance since first_fix."""
+        return self.driven_m - self.baseline_from_m
 
 
 class RoadFilter:
@@ -421,7 +426,6 @@ class RoadFilter:
                 self.state.odo_speed_mps = speed
         s = self.state
         if s.odo_speed_mps is not None and s.t is not None and packet.t > s.t:
-            s.travelled_m += s.odo_speed_mps * (packet.t - s.t)
             s.driven_m += s.odo_speed_mps * (packet.t - s.t)
         s.t = packet.t if s.t is None else max(s.t, packet.t)
 
@@ -512,7 +516,8 @@ class RoadFilter:
         frozen since, so the odometer test weighed the fixes against a distance long
         stale."""
         s = self.state
-        s.first_fix, s.turned_rad, s.travelled_m = (t, east, north, sigma_m), 0.0, 0.0
+        s.first_fix, s.turned_rad = (t, east, north, sigma_m), 0.0
+        s.baseline_from_m = s.driven_m
         s.baseline_fixes = ((t, east, north, 0.0),)
 
     def _step_from_last_start_up_fix(self, t: float, east: float, north: float
@@ -1178,14 +1183,11 @@ class RoadFilter:
         went 0.23 -> 0.98x."""
         s, cfg = self.state, self.config
         if s.gps_bias_t is not None:
-            dt = t - s.gps_bias_t
-            if self._bias_held(t):
-                motion.propagate_gps_bias(s.x, s.P, dt, cfg.gps_bias_tau_s,
-                                          cfg.held_bias_wander * s.gps_bias_bound_sigma_m,
-                                          held_within_m=0.5 * s.gps_bias_bound_sigma_m)
-            else:
-                motion.propagate_gps_bias(s.x, s.P, dt, cfg.gps_bias_tau_s,
-                                          s.gps_bias_sigma_m)
+            held = self._bias_held(t)
+            sigma = cfg.held_bias_wander * s.gps_bias_bound_sigma_m if held \
+                else s.gps_bias_sigma_m
+            motion.propagate_gps_bias(s.x, s.P, t - s.gps_bias_t, cfg.gps_bias_tau_s, sigma,
+                                      0.5 * s.gps_bias_bound_sigma_m if held else None)
         s.gps_bias_t = t
 
     def _tracking(self, t: float, nis: float) -> None:
