@@ -794,6 +794,21 @@ def test_start_up_heading_is_not_taken_from_fixes_sweeping_off_the_driven_line()
     assert estimate is not None and math.hypot(estimate.x_m, estimate.y_m - north_m(30.0)) < 10.0
 
 
+def test_start_up_heading_is_not_taken_across_a_gap_in_the_fixes() -> None:
+    """GPS alone, no course: the car drives north at 10 m/s. Its first fix is 30 m east (a
+    non-line-of-sight fix, as before a receiver loses lock), then none for 4.5 s, then right
+    ones. The bearing across the gap was 34 degrees off with a sigma of 4; a baseline does
+    not span a gap longer than ``track_gap_s``, so the heading comes from the fixes after it."""
+    packets: list[Packet] = []
+    for t in (0.0, 4.5, 5.5, 6.5, 7.5, 8.5):
+        lon, lat = FRAME.to_wgs84(30.0 if t == 0.0 else 0.0, SPEED_MPS * t)
+        packets.append(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=3.0))
+    road = RoadFilter(FusionConfig(sensors=SensorConfig.GPS_ONLY), FRAME)
+    start = _first_estimate(road, packets)
+    assert start.t > 4.5
+    assert abs(math.remainder(start.heading_rad, 2.0 * math.pi)) < 3.0 * start.heading_sigma_rad
+
+
 def test_re_acquiring_counts_the_heading_baseline_from_the_restarting_fix() -> None:
     """Re-acquiring starts a new start-up heading at the fix that restarts the filter: the
     odometer's distance and the gyro's turn are counted from there (they had kept the counts

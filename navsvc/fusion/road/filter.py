@@ -474,9 +474,13 @@ class RoadFilter:
             s.baseline_fixes = (*s.baseline_fixes, (fix.t, east, north, s.travelled_m))
             if moved > MAX_PLAUSIBLE_SPEED_MPS * (fix.t - t0) or self._standing() or \
                     fix.t - t0 > cfg.initial_heading_max_baseline_s or \
+                    fix.t - s.baseline_fixes[-2][0] > cfg.track_gap_s or \
                     abs(s.turned_rad) > cfg.initial_heading_max_turn_rad:
-                first = None  # an outlier, a car standing still, or fixes too far apart in
-                # time or turn for the line between them to be the heading: start over
+                first = None  # an outlier, a car standing still, fixes too far apart in
+                # time or turn for the line between them to be the heading, or a gap in them
+                # (a receiver loses lock, often after fixes gone off: the bearing across a
+                # 4 s gap started two accelerometers 92 degrees off, Stockholm 15 of the
+                # tune split): start over
             else:
                 fit = self._odometer_track_fit(sigma)
                 if fit is not None and not fit.agrees:
