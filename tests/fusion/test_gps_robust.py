@@ -908,3 +908,31 @@ def test_a_refused_jump_still_gives_its_course() -> None:
                 during.append((e.gps.reason, _heading_error_deg(road)))
     assert all(reason.startswith("refused: jumped") for reason, _ in during[2:]), during
     assert max(err for _, err in during[10:]) < 3.0, during
+
+
+def test_a_heading_that_drifted_off_the_road_in_an_outage_is_doubted_when_the_fixes_return(
+        ) -> None:
+    """The gyro bias jumps by 0.3 deg/s as a 60 s outage begins: the estimate turns off its
+    road, 100 m west by the end. The fixes return on the road and, after
+    ``jump_map_after_s``, the map prefers them to the estimate's track: the filter follows
+    them, and its heading variance is widened to explain the drift over the distance driven,
+    so that its heading error lies within 3 sigmas (it was 19 degrees off with a sigma of 5,
+    and still 10 off at the next fix)."""
+    outage = (STILL_S + 20.0, STILL_S + 80.0)
+    packets: list[Packet] = []
+    for p in _drive(STILL_S + 100.0, []):
+        if isinstance(p, GpsFix) and outage[0] <= p.t < outage[1]:
+            continue
+        if isinstance(p, ImuSample) and p.t >= outage[0]:
+            p = replace(p, yaw_rate_rps=p.yaw_rate_rps + math.radians(0.3))
+        packets.append(p)
+    road = RoadFilter(FusionConfig(), FRAME, _north_road_distance)
+    for p in packets:
+        for e in road.apply(p):
+            if isinstance(p, GpsFix) and e.gps is not None and \
+                    e.gps.reason.startswith("re-acquired: the fixes lie on a road"):
+                error = abs(math.remainder(e.heading_rad, 2.0 * math.pi))
+                assert error < 3.0 * e.heading_sigma_rad, (math.degrees(error),
+                                                           math.degrees(e.heading_sigma_rad))
+                return
+    raise AssertionError("the map never preferred the fixes")
