@@ -18,8 +18,11 @@ from navsvc.fusion.road.motion import (
     GPS_LATENCY,
     GYRO_BIAS,
     HEADING,
+    HEADING_RATE,
     ODO_SCALE,
     SPEED,
+    X_M,
+    Y_M,
 )
 from navsvc.types import (
     FusedEstimate,
@@ -936,3 +939,32 @@ def test_a_heading_that_drifted_off_the_road_in_an_outage_is_doubted_when_the_fi
                                                            math.degrees(e.heading_sigma_rad))
                 return
     raise AssertionError("the map never preferred the fixes")
+
+
+def _corner_and_diagonal(x_m: float, y_m: float, heading_rad: float, radius_m: float,
+                         max_bearing_diff_rad: float) -> float:
+    """A map of a corner at the origin (a road north, one east) and a diagonal road, bearing
+    45 degrees, through (-40, 0)."""
+    def along(bearing_rad: float) -> bool:
+        return abs(math.remainder(heading_rad - bearing_rad, math.pi)) <= max_bearing_diff_rad
+    distances = [abs(x_m) if along(0.0) and y_m <= 0.0 else radius_m,
+                 abs(y_m) if along(math.pi / 2.0) and x_m >= 0.0 else radius_m,
+                 abs(x_m + 40.0 - y_m) / math.sqrt(2.0) if along(math.pi / 4.0) else radius_m]
+    return min(min(distances), radius_m)
+
+
+def test_a_car_half_way_round_a_corner_is_on_the_roads_for_the_jump_test() -> None:
+    """Half-way round a corner (heading 45 degrees, turning) the estimate lies on both roads
+    though its heading lies along neither: fixes that jumped 40 m west onto a diagonal road
+    are not followed for lying along the heading while the track does not (a track fitted
+    along its heading mid-corner was "off the roads": Monaco 536 of the tune split)."""
+    road = RoadFilter(FusionConfig(), FRAME, _corner_and_diagonal)
+    s = road.state
+    s.initialized = True
+    s.x[X_M], s.x[Y_M], s.x[HEADING], s.x[SPEED] = 0.0, 0.0, math.pi / 4.0, 6.0
+    innovation = np.array([-40.0, 0.0])
+    for corner_rate_rps, followed in ((0.3, False), (0.0, True)):
+        s.x[HEADING_RATE] = corner_rate_rps
+        s.jump_since_t, s.jump_paused_s, s.jump_fit = 0.0, 0.0, (0, 0.0, 0.0, 0.0, 0.0)
+        verdicts = [road._map_prefers_jump(t, innovation) for t in (4.0, 5.0, 6.0)]
+        assert verdicts == [False, False, followed], (corner_rate_rps, verdicts)
