@@ -235,7 +235,7 @@ class RoadFilter:
         accelerometer bias out of its gain made gyro_accel ekf 11 % worse (the map calibrates
         them), leaving the accelerometer bias alone 2.5 % worse (120 drives each), leaving
         the odometer scale alone 4.0 % worse (600 drives; 73 better, 175 worse; drift over
-        4 % 5 -> 10)."""
+        4 % 5 -> 10: the map calibrates the scale)."""
         s = self.state
         if not s.initialized:
             return False
@@ -1129,11 +1129,10 @@ class RoadFilter:
         track on its road mid-corner was "off the roads" and a non-line-of-sight run 75 m
         off was followed (Monaco 536 of the tune split: 0.85 -> 0.28x raw GPS, matched
         error 76 -> 43 m; 600 drives: one better, one 0.18 -> 0.19x; at a standstill alone
-        before). Tune
-        split, 600 drives: mean log fused/raw -0.5 % (3 drives better, none worse by more
-        than 2 %), drives with a matched error over 50 m 13 -> 12; a car standing 5 m from
-        its road had followed a run 60 m off onto another and refused the true fixes for
-        24 s (Monaco 511: 0.65 -> 0.12x raw GPS)."""
+        before). The rule itself, tune split, 600 drives: mean log fused/raw -0.5 % (3
+        drives better, none worse by more than 2 %), drives with a matched error over 50 m
+        13 -> 12; a car standing 5 m from its road had followed a run 60 m off onto another
+        and refused the true fixes for 24 s (Monaco 511: 0.65 -> 0.12x raw GPS)."""
         s, cfg = self.state, self.config
         if self.road_distance is None or s.jump_since_t is None:
             return False
