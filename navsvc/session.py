@@ -395,14 +395,10 @@ class VehicleSession:
         if self._last_feedback_t is not None and e.t - self._last_feedback_t < 1.0:
             return
         assert self.matcher is not None and p.edge is not None
-        widen = 1.0
-        if c.fusion.gps_mode == GpsMode.EKF:  # the weighted modes' fixes pull too little
-            # to choose between rival roads; there the map alone holds the estimate
-            share = self.matcher.road_share(e, EdgeKey(p.edge.u, p.edge.v, p.edge.key))
-            widen = feedback_sigma_scale(share)
+        share = self.matcher.road_share(e, EdgeKey(p.edge.u, p.edge.v, p.edge.key))
         self.engine.correct_to_road(p.x_m, p.y_m, p.road_bearing_rad,
-                                    c.feedback_sigma_across_m * widen,
-                                    c.feedback_sigma_heading_rad * widen)
+                                    c.feedback_sigma_across_m, c.feedback_sigma_heading_rad,
+                                    feedback_probability(share))
         self._last_feedback_t = e.t
 
 
@@ -429,20 +425,35 @@ def feedback_wanted(p: MatchedPosition, c: SessionConfig) -> bool:
         abs(wrap_angle_rad(e.heading_rad - bearing)) <= math.radians(20.0)
 
 
-def feedback_sigma_scale(road_share: float) -> float:
-    """How much wider the feedback's sigmas are for a matched road that other roads beside
-    the estimate rival (:meth:`OnlineMatcher.road_share`): not at all while it holds at
-    least half their likelihood (in a dense map the road driven usually has others beside
-    it), else ``1 / sqrt(2 share)``: the estimate has drifted nearer another road than the
-    one matched, and the match is a measurement only that likely (as in probabilistic data
-    association). Held to its road at full weight, an estimate after an outage sat on a road
-    20 m from the one driven for a minute while the fixes, 3 m off, were taken as a bias
-    (Stockholm 585 of the tune split: 0.85 -> 0.19x raw GPS, outage drift 6.9 -> 0.8 %).
-    Tune split, 600 drives: mean log fused/raw -0.2 % (4 better, 5 worse by more than 2 %),
-    drives with drift over 4 % 7 -> 6, with a matched error over 50 m 12 -> 11. Widening by
-    ``1 / sqrt(share)`` at every share: -0.1 %, but 31 better and 46 worse (dense Monaco
-    lost the pull that held its outages); widening the heading's sigma alone: no change."""
-    return 1.0 if road_share >= 0.5 else 1.0 / math.sqrt(2.0 * max(road_share, 1e-12))
+def feedback_probability(road_share: float) -> float:
+    """How likely the feedback takes a matched road to be the one driven, from its share
+    of the likelihood of the roads beside the estimate (:meth:`OnlineMatcher.road_share`):
+    sure while it holds at least half (in a dense map the road driven usually has others
+    beside it), else twice its share: the estimate has drifted nearer another road than the
+    one matched. The filter then takes that share of the constraint's pull and of the
+    variance it would remove (:func:`navsvc.fusion.kalman.no_surer_than`), as
+    probabilistic data association does. Held to its road at full weight, an estimate after
+    an outage sat on a road 20 m from the one driven for a minute while the fixes, 3 m off,
+    were taken as a bias (Stockholm 585 of the tune split: 0.85 -> 0.19x raw GPS).
+
+    The rival road used to widen the constraint's sigmas by ``1 / sqrt(2 share)`` instead.
+    For an estimate that had lost its place that was still a sure road: one update took a
+    sigma of 170 m to 13 m and a heading sigma of 43 degrees to 6, 777 m from the truth
+    (steering, Stockholm 120). Tune split against it: default (600 drives) 6 better, 2
+    worse (gh-issue-13 39 1.67 -> 0.84x raw GPS); gyro_accel (120) 6 better, 4 worse,
+    largest matched error with GPS 620 -> 525 m; steering, gyro_two_accels (120 each)
+    unchanged but for Stockholm 120, a lost cause either way (11.7 -> 12.7x). Once pulled
+    part of the way, the same road's share grows at the next match: a rivalled road is
+    still followed, over several seconds instead of one. Not feeding back at all below a
+    quarter of the likelihood (measured with the old widening: default 2 better, none
+    worse) added a threshold for no more.
+
+    The rules and fuzzy modes used to feed every road back as sure (their fixes pull too
+    little to choose between rival roads, so the map alone held the estimate). With the
+    probability (tune split, 120 drives each, mean log fused/raw GPS): gyro_accel rules -1.4 % (11 better, 5 worse),
+    fuzzy -1.8 % (10, 7); gyro_odometer rules -0.3 % (3, 0), fuzzy +0.1 % (0, 1);
+    steering rules -0.3 % (4, 4), fuzzy -0.1 % (1, 2): one rule for every mode."""
+    return min(2.0 * road_share, 1.0)
 
 
 class SessionOptions(BaseModel):

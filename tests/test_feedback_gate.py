@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from navsvc.session import SessionConfig, feedback_sigma_scale, feedback_wanted
+from navsvc.session import SessionConfig, feedback_probability, feedback_wanted
 from navsvc.types import FusedEstimate, MatchedPosition, MatchState
 
 CONFIG = SessionConfig()
@@ -64,12 +64,12 @@ def test_the_gate_is_the_larger_of_the_fixed_distance_and_the_sigma_gate(
         assert feedback_wanted(_match(distance_m, sigma_m), CONFIG) == (distance_m < limit_m)
 
 
-def test_a_matched_road_holding_half_the_likelihood_or_more_is_fed_back_whole() -> None:
-    assert feedback_sigma_scale(1.0) == feedback_sigma_scale(0.5) == 1.0
+def test_a_matched_road_holding_half_the_likelihood_or_more_is_fed_back_as_sure() -> None:
+    assert feedback_probability(1.0) == feedback_probability(0.5) == 1.0
 
 
-@given(st.floats(min_value=1e-9, max_value=0.5, exclude_max=True))
+@given(st.floats(min_value=0.0, max_value=0.5, exclude_max=True))
 def test_a_rivalled_road_is_fed_back_as_a_measurement_only_that_likely(share: float) -> None:
-    """Below half, the information (1 / sigma^2) falls with the share: halved at a quarter,
+    """Below half, the probability falls with the share: a half at a quarter, none at none,
     and continuous at a half."""
-    assert 1.0 / feedback_sigma_scale(share) ** 2 == pytest.approx(2.0 * share)
+    assert feedback_probability(share) == pytest.approx(2.0 * share)

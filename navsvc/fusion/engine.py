@@ -106,13 +106,15 @@ class FusionEngine:
         return self.filter.estimate()
 
     def correct_to_road(self, east_m: float, north_m: float, road_bearing_rad: float,
-                        sigma_across_m: float, sigma_heading_rad: float) -> bool:
+                        sigma_across_m: float, sigma_heading_rad: float,
+                        probability: float = 1.0) -> bool:
         """Map feedback: the position is on the road through ``(east_m, north_m)`` with
-        bearing ``road_bearing_rad`` and the heading follows it (:class:`RoadConstraint`);
-        False when the gate refuses it. It cannot be replayed: the reorder window starts
-        again after it."""
+        bearing ``road_bearing_rad`` and the heading follows it (:class:`RoadConstraint`),
+        with ``probability`` that it is the road driven; False when the gate refuses it. It
+        cannot be replayed: the reorder window starts again after it."""
         applied = self.filter.correct(RoadConstraint(east_m, north_m, road_bearing_rad,
-                                                     sigma_across_m, sigma_heading_rad))
+                                                     sigma_across_m, sigma_heading_rad,
+                                                     probability))
         if applied:
             self.window.clear()
         return applied

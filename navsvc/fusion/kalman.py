@@ -171,15 +171,22 @@ def correct_leaving_compiled(x: Array, P: Array, y: Array, H: Array, R: Array,
     return joseph(x, P, y, H, R, K)
 
 
-def no_surer_than(P: Array, H: Array, R: Array) -> Array:
+def no_surer_than(P: Array, H: Array, R: Array, probability: float = 1.0) -> Array:
     """``R`` (diagonal) raised so that no row of the update leaves the state surer along it
     than the measurement itself is: for a source that says the same thing again and again
     with one error that does not average out (the map: a road's line is as wrong the
-    hundredth time it is looked at as the first). A row already that sure is dropped."""
+    hundredth time it is looked at as the first). A row already that sure is dropped.
+
+    A measurement right only with ``probability`` (a road that others beside the estimate
+    rival) takes that share of the variance the update would take away, and moves the
+    state by that share of its full step: the mixture of taking it and leaving it, as in
+    probabilistic data association (the other roads' own pulls left out)."""
     R = R.copy()
     for i in range(len(R)):
         p, r = float(H[i] @ P @ H[i]), float(R[i, i])
-        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) else max(r, r * p / (p - r))
+        removed = probability * (p - r)  # of the variance p along the row
+        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) or probability <= 0.0 \
+            else max(r, p * (p - removed) / removed)
     return R
 
 

@@ -607,6 +607,30 @@ def _across_after_the_road(sensors: str) -> tuple[float, float, float]:
     return abs(e.x_m), float(e.position_cov_m2[0, 0]), road.state.gps_unseen_var_m2
 
 
+def test_a_road_that_rivals_share_pulls_a_lost_estimate_only_that_likely() -> None:
+    """After a long outage the estimate is 150 m unsure, and the matched road is one of
+    several beside it (a fifth of their likelihood). Fed back as a sure road, one update
+    took the estimate onto it and its sigma to a few metres (steering, Stockholm 120 of the
+    tune split: 777 m off with a sigma of 13 m). Fed back a fifth likely, the estimate moves
+    a fifth of the way and keeps four fifths of its variance across the road."""
+    road = RoadFilter(FusionConfig(), FRAME, _north_road_distance)
+    for p in _drive(60.0, [], accuracy_m=3.0):
+        road.apply(p)
+    road.state.P[0, 0] = road.state.P[1, 1] = 150.0 ** 2
+    before_m, before_var = float(road.state.x[0]), float(road.state.P[0, 0])
+    north = float(road.state.x[1])
+    sure = road.snapshot()
+    assert road.correct(RoadConstraint(before_m + 40.0, north, 0.0, 2.0, math.radians(5.0)))
+    sure_pull_m = float(road.state.x[0]) - before_m
+    assert float(road.state.P[0, 0]) < 3.0 ** 2
+    road.restore(sure)
+    assert road.correct(RoadConstraint(before_m + 40.0, north, 0.0, 2.0, math.radians(5.0),
+                                       probability=0.2))
+    assert float(road.state.x[0]) - before_m == pytest.approx(0.2 * sure_pull_m, rel=0.01)
+    assert float(road.state.P[0, 0]) == pytest.approx(
+        before_var - 0.2 * (before_var - 2.0 ** 2), rel=0.01)
+
+
 def test_the_unseen_error_scales_a_dead_reckoned_covariance_and_adds_to_gps_alone() -> None:
     """The map saw the fixes 8 m off while their sigma said 3 m. Once the road has put the
     dead-reckoned estimate back on it, the error the fixes share is no longer the estimate's:

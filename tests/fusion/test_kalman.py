@@ -111,6 +111,27 @@ def test_a_repeated_measurement_never_makes_the_state_surer_than_itself(
         assert H[0] @ P @ H[0] >= min(R[0, 0], before) * (1.0 - 1e-6)
 
 
+@given(st.floats(0.5, 1e4), st.floats(0.01, 0.99), st.floats(0.0, 1.0), st.floats(-50.0, 50.0))
+def test_a_measurement_only_that_likely_takes_that_share_of_its_update(
+        variance: float, measured_share: float, probability: float, innovation: float) -> None:
+    """A road that others rival (map feedback after a long outage, when the estimate could
+    lie on any of a dozen): the update removes ``probability`` of the variance it would
+    remove for a sure road, and moves the state ``probability`` of the way, as the mixture
+    of taking the road and not would; at 1 it is the sure road's ``no_surer_than``."""
+    P = np.array([[variance, 0.3 * variance], [0.3 * variance, variance]])
+    H = np.array([[1.0, 0.0]])
+    R = np.array([[measured_share * variance]])
+    y = np.array([innovation])
+    sure_x, sure_P, _ = kalman.correct(np.zeros(2), P, y, np.zeros(1), H,
+                                       kalman.no_surer_than(P, H, R), np.inf)
+    x, P_after, _ = kalman.correct(np.zeros(2), P, y, np.zeros(1), H,
+                                   kalman.no_surer_than(P, H, R, probability), np.inf)
+    removed = variance - P_after[0, 0]
+    assert removed == pytest.approx(probability * (variance - sure_P[0, 0]), rel=1e-6,
+                                    abs=1e-6 * variance)  # a dropped row: 1e12
+    np.testing.assert_allclose(x, probability * sure_x, rtol=1e-6, atol=1e-6 * abs(innovation))
+
+
 @given(st.floats(0.01, 120.0), st.floats(1.0, 100.0), st.floats(0.1, 30.0),
        st.floats(-40.0, 40.0))
 def test_a_held_gps_bias_keeps_its_value_and_grows_as_the_process_would(

@@ -113,11 +113,13 @@ class AcrossRoad:
     ``road_bearing_rad`` (clockwise from north), within ``sigma_m`` across it; along it the
     map says nothing. The position residual at that point, projected on the road's normal;
     its variance raised so that the update leaves the position no surer across the road than
-    the map is (the same road again and again: its error does not average out)."""
+    the map is (the same road again and again: its error does not average out), and taken
+    as right only with ``probability`` (:func:`navsvc.fusion.kalman.no_surer_than`)."""
 
     point: GnssFix  # its sigmas unused
     road_bearing_rad: float
     sigma_m: float
+    probability: float = 1.0
     gate_dof: ClassVar[int] = 1
     soft_gate: ClassVar[bool] = False
 
@@ -125,4 +127,5 @@ class AcrossRoad:
         y, H = ins.position_residual(self.point)
         normal_ne = np.array([-np.sin(self.road_bearing_rad), np.cos(self.road_bearing_rad)])
         y1, H1 = np.array([normal_ne @ y[:2]]), (normal_ne @ H[:2])[None, :]
-        return _linearised(ins, y1, H1, no_surer_than(ins.P, H1, np.array([[self.sigma_m ** 2]])))
+        return _linearised(ins, y1, H1, no_surer_than(ins.P, H1, np.array([[self.sigma_m ** 2]]),
+                                                     self.probability))

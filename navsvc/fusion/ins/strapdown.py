@@ -176,7 +176,8 @@ class StrapdownFilter:
         lon, lat = self.frame.to_wgs84(m.east_m, m.north_m)
         n = s.ins.output()
         point = GnssFix(n.t, math.radians(lat), math.radians(lon), n.h_m, np.ones(3))
-        return s.ins.update(AcrossRoad(point, m.road_bearing_rad, m.sigma_across_m))
+        return s.ins.update(AcrossRoad(point, m.road_bearing_rad, m.sigma_across_m,
+                                       m.probability))
 
     def apply(self, packet: Packet) -> list[FusedEstimate]:
         """One packet, not older than the state; the estimates it produced."""

@@ -241,7 +241,7 @@ class RoadFilter:
             return False
         z, h, H, R = m.model(s.x)
         if isinstance(m, RoadConstraint):  # the same map again: its error does not average
-            R = kalman.no_surer_than(s.P, H, R)
+            R = kalman.no_surer_than(s.P, H, R, m.probability)
         limit = kalman.gate_limit(len(z))
         s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
         return nis <= limit

@@ -286,6 +286,8 @@ class RoadConstraint:
 
     The first row is the offset across the road (the along-road offset is not observed); the
     second the heading difference, wrapped, with the road's direction as measured heading.
+    ``probability``: how likely the road is the one driven (the filter takes the
+    constraint as right only that likely: :func:`navsvc.fusion.kalman.no_surer_than`).
     """
 
     east_m: float
@@ -293,6 +295,7 @@ class RoadConstraint:
     road_bearing_rad: float
     sigma_across_m: float
     sigma_heading_rad: float
+    probability: float = 1.0
 
     def model(self, x: Array) -> Linearised:
         nx_, ny_ = math.cos(self.road_bearing_rad), -math.sin(self.road_bearing_rad)  # normal
