@@ -450,9 +450,10 @@ def feedback_probability(road_share: float) -> float:
 
     The rules and fuzzy modes used to feed every road back as sure (their fixes pull too
     little to choose between rival roads, so the map alone held the estimate). With the
-    probability (tune split, 120 drives each, mean log fused/raw GPS): gyro_accel rules -1.4 % (11 better, 5 worse),
-    fuzzy -1.8 % (10, 7); gyro_odometer rules -0.3 % (3, 0), fuzzy +0.1 % (0, 1);
-    steering rules -0.3 % (4, 4), fuzzy -0.1 % (1, 2): one rule for every mode."""
+    probability (tune split, 120 drives each, mean log fused/raw GPS): gyro_accel rules
+    -1.4 % (11 better, 5 worse), fuzzy -1.8 % (10, 7); gyro_odometer rules -0.3 % (3, 0),
+    fuzzy +0.1 % (0, 1); steering rules -0.3 % (4, 4), fuzzy -0.1 % (1, 2): one rule for
+    every mode."""
     return min(2.0 * road_share, 1.0)
 
 
