@@ -231,7 +231,11 @@ class RoadFilter:
         Measured and left out (tune split): gating a road constraint on the map's own
         sigmas before ``no_surer_than`` widens them (a road at 17 degrees to a sure heading
         is then refused) took Monaco 521 1.48 -> 1.01x raw GPS but Monaco 396 0.59 -> 2.26x
-        and 546 1.43 -> 3.42x (600 drives, mean log +0.4 %); leaving the speed and the
+        and 546 1.43 -> 3.42x (600 drives, mean log +0.4 %); gating with the across row
+        widened and only a dropped heading row at the map's sigma (a road 12-16 degrees off
+        a heading surer than the map) took 521 1.47 -> 1.00x and 546 1.37 -> 1.12x, but 396
+        0.59 -> 2.26x again (mean log +0.2 %, 7 better, 11 worse): whether the heading or
+        the road is wrong, one estimate cannot tell; leaving the speed and the
         accelerometer bias out of its gain made gyro_accel ekf 11 % worse (the map calibrates
         them), leaving the accelerometer bias alone 2.5 % worse (120 drives each), leaving
         the odometer scale alone 4.0 % worse (600 drives; 73 better, 175 worse; drift over
