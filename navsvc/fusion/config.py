@@ -88,7 +88,8 @@ class FusionConfig:
     reacquire_after_gated_s: float = 30.0  # fixes refused this long → start over from GPS
     gps_lost_beyond_m: float = 150.0  # ekf: refused fixes farther than any non-line-of-sight
     # error (20-80 m) from the estimate are no jump; such fixes ...
-    gps_lost_after_s: float = 2.0  # ... for this long (3 fixes at least) → start over from GPS
+    gps_lost_after_s: float = 2.0  # ... for this long (3 fixes at least; after a gap, the
+    # first) → start over from GPS
     inflate_after_gated_fixes: int = 3  # ekf: refused this often in a row → widen position P
     reset_heading_after_gated_courses: int = 3  # ekf: GPS course refused this often → adopt it
     max_hdop: float = 20.0  # thesis validity: DOP > 20 is bad
@@ -106,9 +107,10 @@ class FusionConfig:
     weighted_reacquire_after_s: float = 30.0  # rules, fuzzy: fixes far from the estimate
     # this long restart it from GPS (a restart onto a non-line-of-sight run is undone when
     # the fixes jump back)
-    weighted_gap_s: float = 10.0  # rules, fuzzy: no fix this long is a GPS gap ...
-    weighted_reacquire_after_gap_s: float = 3.0  # ... and fixes far from the estimate this
-    # long since they came back restart it from GPS (it drifted in the gap)
+    gps_gap_s: float = 10.0  # no fix this long is a GPS gap: the first fix after it that
+    # lies beyond any non-line-of-sight error (gps_lost_beyond_m) restarts from GPS at once
+    weighted_reacquire_after_gap_s: float = 3.0  # rules, fuzzy: fixes far from the
+    # estimate this long since a gap restart it from GPS (it drifted in the gap)
     weighted_diverging_mps: float = 1.0  # rules, fuzzy: refused fixes whose offset from the
     # estimate changes faster than this (beyond jump_spread_m or 4 sigma) say the estimate
     # diverges (a non-line-of-sight run's offset stays put): restart from GPS at once

@@ -175,7 +175,7 @@ class RoadState:
     # seconds' fixes
     last_output_t: float | None = None
     gps: GpsUsage | None = None
-    refused_after_gap: bool = False  # rules and fuzzy: the refused run began with the
+    refused_after_gap: bool = False  # the refused run began with the
     # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump) ...
     refused_jump: bool = False  # ... or as a jump away from a close track (one)
     weighted_distance_m: float | None = None  # rules and fuzzy: the last fix's distance
@@ -950,7 +950,7 @@ class RoadFilter:
             s.gps = GpsUsage(False, 0.0, f"refused: jumped {math.hypot(*y):.0f} m away from "
                              "the track (non-line-of-sight?)", nis=nis)
         else:
-            self._refused_fix(fix, *local, m, nis, min(dt_s, 1.0))
+            self._refused_fix(fix, *local, m, nis, dt_s)
         return True
 
     def _remember_followed_jump(self, t: float, innovation: Array, residual: Array,
@@ -1445,13 +1445,20 @@ class RoadFilter:
             s.first_gated_t, s.gated_offset_m = fix.t, (float(z[0] - h[0]), float(z[1] - h[1]))
             s.calibration_before_gated = tuple((float(s.x[i]), float(s.P[i, i]))
                                                for i in CALIBRATED)
-        lost = self._refused_from_afar() and s.gated_fixes >= 3 and \
-            fix.t - s.first_gated_t >= cfg.gps_lost_after_s
+            s.refused_after_gap = dt_s >= cfg.gps_gap_s
+        lost = self._refused_from_afar() and (s.refused_after_gap or (
+            s.gated_fixes >= 3 and fix.t - s.first_gated_t >= cfg.gps_lost_after_s))
+        dt_s = min(dt_s, 1.0)
         if not math.isfinite(nis) or fix.t - s.first_gated_t >= cfg.reacquire_after_gated_s \
                 or lost:
             s.initialized = False  # heading and speed are not to be trusted either
             self._restore_calibration_before_gated()
-            self._start_heading_baseline(fix.t, east, north, self._sigma_m(fix))
+            sigma = self._sigma_m(fix)
+            self._start_heading_baseline(fix.t, east, north, sigma)
+            s.x[X_M], s.x[Y_M] = east, north  # what it tells now: the fix, not where the
+            # lost track had got to (hundreds of metres off after a long outage)
+            _reset_variance(s.P, X_M, sigma ** 2)
+            _reset_variance(s.P, Y_M, sigma ** 2)
             s.gps = GpsUsage(False, 0.0, "re-acquiring: " + (
                 "the fixes lie beyond any non-line-of-sight error" if lost
                 else "estimate far from GPS too long"))
@@ -1484,7 +1491,10 @@ class RoadFilter:
         fixes. Such a run is no jump, and after ``gps_lost_after_s`` (3 fixes at least) the
         filter starts over from GPS (dead reckoning on an accelerometer's speed ran 570 m
         away through a minute without fixes, and the fixes that came back were refused for
-        30 s)."""
+        30 s). A run that begins after a gap (``gps_gap_s``) starts over at its first fix:
+        nothing tracked the fixes through the gap, and the estimate the filter emitted while
+        it waited was the lost one (gyro_accel, Andorra 102 of the tune split: 620 m off
+        after a 150 s gap; the real urban drive's fixes after its gaps were 2-24 m off)."""
         s = self.state
         return s.gated_fixes > 0 and self._beyond_any_nlos(s.gated_offset_m)
 
@@ -1537,8 +1547,8 @@ class RoadFilter:
         uncertainty covers it (it is lost, not the fix: after an outage), when the fixes jump
         back by about a jump a restart followed (a non-line-of-sight run), when the far
         fixes run away from the estimate (``weighted_diverging_mps``), when they have lain
-        farther from it than any non-line-of-sight error for ``gps_lost_after_s``
-        (``gps_lost_beyond_m``, as in ``ekf``), when they have been
+        farther from it than any non-line-of-sight error for ``gps_lost_after_s``, or since
+        a gap (``gps_lost_beyond_m``, as in ``ekf``), when they have been
         far since they came back after a gap (``weighted_reacquire_after_gap_s``), or after
         ``weighted_reacquire_after_s`` (``max_jump_s`` when the fixes leapt away from a close
         track: non-line-of-sight runs last 10-60 s, and a restart onto one is wrong; the
@@ -1617,7 +1627,7 @@ class RoadFilter:
         if s.first_gated_t is None:
             s.first_gated_t, s.gated_offset_m = fix.t, (float(innovation[0]),
                                                         float(innovation[1]))
-            s.refused_after_gap = dt_s >= cfg.weighted_gap_s
+            s.refused_after_gap = dt_s >= cfg.gps_gap_s
             s.refused_jump = dt_s <= cfg.track_gap_s and previous is not None and \
                 previous <= 0.5 * cfg.rules.max_distance_m
         elif s.gated_offset_m is not None and \
@@ -1629,7 +1639,7 @@ class RoadFilter:
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
                                "away from the estimate (it diverges)", heading_lost=True)
         if distance_m > cfg.gps_lost_beyond_m and self._beyond_any_nlos(s.gated_offset_m) \
-                and fix.t - s.first_gated_t >= cfg.gps_lost_after_s:
+                and (s.refused_after_gap or fix.t - s.first_gated_t >= cfg.gps_lost_after_s):
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes lie "
                                "beyond any non-line-of-sight error", heading_lost=True)
