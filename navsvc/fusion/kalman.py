@@ -185,8 +185,9 @@ def no_surer_than(P: Array, H: Array, R: Array, probability: float = 1.0) -> Arr
     for i in range(len(R)):
         p, r = float(H[i] @ P @ H[i]), float(R[i, i])
         removed = probability * (p - r)  # of the variance p along the row
-        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) or probability <= 0.0 \
-            else max(r, p * (p - removed) / removed)
+        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) or not probability > 0.0 \
+            else min(max(r, p * (p - removed) / removed), DROPPED_VARIANCE)  # an infinite
+        # variance (an unlikely road beside a huge P) made the update's K R K^T NaN
     return R
 
 

@@ -132,6 +132,16 @@ def test_a_measurement_only_that_likely_takes_that_share_of_its_update(
     np.testing.assert_allclose(x, probability * sure_x, rtol=1e-6, atol=1e-6 * abs(innovation))
 
 
+@given(st.floats(1.0, 1e300), st.floats(0.0, 1e-12))
+def test_a_road_all_but_ruled_out_says_nothing_and_stays_finite(variance: float,
+                                                                 probability: float) -> None:
+    """A road of (next to) no probability beside a huge variance: its row says nothing
+    (``DROPPED_VARIANCE``), not an infinite variance, whose ``K R K^T`` is NaN."""
+    R = kalman.no_surer_than(np.array([[variance]]), np.array([[1.0]]), np.array([[0.25]]),
+                             probability)
+    assert 0.25 <= R[0, 0] <= kalman.DROPPED_VARIANCE
+
+
 @given(st.floats(0.01, 120.0), st.floats(1.0, 100.0), st.floats(0.1, 30.0),
        st.floats(-40.0, 40.0))
 def test_a_held_gps_bias_keeps_its_value_and_grows_as_the_process_would(

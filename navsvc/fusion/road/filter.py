@@ -247,7 +247,10 @@ class RoadFilter:
         if isinstance(m, RoadConstraint):  # the same map again: its error does not average
             R = kalman.no_surer_than(s.P, H, R, m.probability)
         limit = kalman.gate_limit(len(z))
-        s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        x, P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
+        if not (np.isfinite(x).all() and np.isfinite(P).all()):  # as for a fix: never a
+            return False  # state no later packet can recover from
+        s.x, s.P = x, P
         return nis <= limit
 
     def apply(self, packet: Packet) -> list[FusedEstimate]:
