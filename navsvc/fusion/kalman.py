@@ -186,8 +186,8 @@ def no_surer_than(P: Array, H: Array, R: Array, probability: float = 1.0) -> Arr
         p, r = float(H[i] @ P @ H[i]), float(R[i, i])
         removed = probability * (p - r)  # of the variance p along the row
         R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) or not probability > 0.0 \
-            else min(max(r, p * (p - removed) / removed), DROPPED_VARIANCE)  # an infinite
-        # variance (an unlikely road beside a huge P) made the update's K R K^T NaN
+            else min(max(r, p * (p - removed) / removed), DROPPED_VARIANCE)  # a road all
+        # but ruled out beside a huge P: no infinite variance, which the inverse turns to NaN
     return R
 
 
