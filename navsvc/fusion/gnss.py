@@ -34,13 +34,17 @@ def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:
     return None
 
 
+MIN_SIGMA_M = 0.01  # no receiver is surer than a centimetre (RTK: about 2 cm)
+
+
 def gps_sigma_m(fix: GpsFix, uere_m: float, default_sigma_m: float) -> float:
     """1-σ horizontal error of a fix: its own accuracy, else HDOP × UERE, else by fix type
-    (RTK, DGPS), else the conservative ``default_sigma_m``."""
+    (RTK, DGPS), else the conservative ``default_sigma_m``; never below ``MIN_SIGMA_M`` (a
+    client's accuracy of 5e-324 m squared to zero, and the filters divided by it)."""
     if fix.accuracy_m is not None and fix.accuracy_m > 0.0:
-        return fix.accuracy_m
+        return max(fix.accuracy_m, MIN_SIGMA_M)
     if fix.hdop is not None and fix.hdop > 0.0:
-        return fix.hdop * uere_m
+        return max(fix.hdop * uere_m, MIN_SIGMA_M)
     if fix.fix in _FIX_SIGMA_M:
         return _FIX_SIGMA_M[fix.fix]
     return default_sigma_m

@@ -8,7 +8,8 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from navsvc.fusion.gnss import MapSeenError
+from navsvc.fusion.gnss import MIN_SIGMA_M, MapSeenError, gps_sigma_m
+from navsvc.types import GpsFix
 
 MEMORY_S = 60.0
 
@@ -72,3 +73,16 @@ def test_the_variance_ratio_agrees_with_the_unseen_variance(
     assert ratio >= min(floor, 1.0)
     if unseen > 0.0:
         assert math.isclose(ratio, 1.0 + unseen / sigma_m ** 2, rel_tol=1e-9)
+
+
+def test_a_fix_claiming_an_accuracy_no_receiver_has_counts_as_a_centimetre() -> None:
+    """A client may send any accuracy above zero; squared, 5e-324 m is zero, and the
+    filters divided by it (the WebSocket fuzzer's positions with non-finite numbers, and a
+    ZeroDivisionError in the rules and fuzzy modes' map-seen error)."""
+    fix = GpsFix(0.0, lat_deg=43.73, lon_deg=7.42, accuracy_m=5e-324)
+    sigma_m = gps_sigma_m(fix, 5.0, 10.0)
+    assert sigma_m == MIN_SIGMA_M
+    seen = MapSeenError()
+    for _ in range(59):
+        seen = seen.updated(3.0, 1.0, MEMORY_S)
+    assert math.isfinite(seen.variance_ratio(sigma_m, MEMORY_S, 10.0, 0.25))
