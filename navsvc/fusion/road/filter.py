@@ -175,9 +175,9 @@ class RoadState:
     # seconds' fixes
     last_output_t: float | None = None
     gps: GpsUsage | None = None
-    refused_after_gap: bool = False  # the refused run began with the
-    # first fix after a GPS gap (dead reckoning drifted; no non-line-of-sight jump) ...
-    refused_jump: bool = False  # ... or as a jump away from a close track (one)
+    refused_after_gap: bool = False  # the refused run began with the first fix after a
+    # GPS gap (every mode; dead reckoning drifted: no non-line-of-sight jump)
+    refused_jump: bool = False  # rules and fuzzy: ... or as a jump away from a close track
     weighted_distance_m: float | None = None  # rules and fuzzy: the last fix's distance
 
     @property
