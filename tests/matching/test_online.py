@@ -119,7 +119,9 @@ def test_lost_when_moving_against_the_road() -> None:
 def test_the_wrong_branch_of_a_narrow_fork_is_left_for_the_right_one() -> None:
     """Two roads leave a node 12° apart: matched to the wrong one, the vehicle is never far
     enough off it (30 m) nor heading against it to be off road or lost, but after a couple of
-    seconds clearly off it for its sigma the matcher starts up again on the right one."""
+    seconds holding far less of the likelihood than the road it runs along (9 m off), the
+    matcher starts up again on the right one (before ``rival_share``, 15 m off: clearly off
+    it for its sigma)."""
     g = nx.MultiDiGraph()
     fork = math.radians(12.0)
     pos = {0: (0.0, 0.0), 1: (0.0, 300.0), 2: (300.0 * math.sin(fork), 300.0 * math.cos(fork))}
@@ -134,8 +136,8 @@ def test_the_wrong_branch_of_a_narrow_fork_is_left_for_the_right_one() -> None:
         d = 10.0 + 0.8 * k
         p = matcher.update(estimate(0.1 * k, d * math.sin(fork), d * math.cos(fork), 12.0))
         matched[round(d)] = edge_of(p)
-    assert matched[50] == (0, 1)  # 8 m off: within its sigma, no reason to doubt yet
-    assert all(matched[d] == (0, 2) for d in range(110, 240, 10))
+    assert matched[30] == (0, 1)  # 6 m off: between the two, no reason to doubt yet
+    assert all(matched[d] == (0, 2) for d in range(50, 240, 10))
 
 
 def test_standing_in_the_region_keeps_what_the_turn_showed() -> None:
@@ -277,3 +279,21 @@ def test_road_share_halves_between_two_streets_and_follows_the_nearer() -> None:
     assert matcher.road_share(nearer_west, west) > 0.5 > matcher.road_share(nearer_west, east)
     assert matcher.road_share(nearer_west, west) + \
         matcher.road_share(nearer_west, east) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(("east_m", "switches"), [(6.0, False), (8.5, True)])
+def test_a_road_beside_that_fits_far_better_takes_the_match_over(east_m: float,
+                                                                 switches: bool) -> None:
+    """Matched to the west one of two streets 10 m apart, the estimate runs ``east_m`` east
+    of it: well within the poor-fit distance of both, but at 8.5 m the street it runs beside
+    holds over 70 % of their likelihood, and after ``poor_fit_after_s`` the matcher starts
+    up again there (a fork taken wrongly in an outage: Monaco 546 of the tune split, 1.37
+    -> 0.45x raw GPS); nearer the middle it keeps its road."""
+    matcher = OnlineMatcher(_two_streets(10.0))
+    for k in range(10):
+        p = matcher.update(estimate(0.1 * k, 0.0, -90.0 + 0.8 * k, 0.0))
+    assert edge_of(p) == (0, 1)
+    matched = [edge_of(matcher.update(estimate(1.0 + 0.1 * k, east_m, -82.0 + 0.8 * k, 0.0)))
+               for k in range(40)]
+    assert all(edge == (0, 1) for edge in matched[:19])  # not before poor_fit_after_s
+    assert matched[-1] == ((3, 4) if switches else (0, 1))
