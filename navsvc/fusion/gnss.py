@@ -161,8 +161,10 @@ def baseline_heading(fit: TrackFit | None, ends: tuple[float, float, float, floa
     far apart. None before. Both filters start so."""
     need_m = max(min_move_m, min_move_sigmas * spread_m)
     if fit is not None:
-        if travelled_m < need_m or abs(fit.distance_ratio - 1.0) > max_distance_misfit:
-            return None
+        if travelled_m < need_m or abs(fit.distance_ratio - 1.0) > max_distance_misfit or \
+                not math.isfinite(fit.variance_rad2):  # the odometer drove, the fixes did
+            return None  # not span it (a jump of its ticks): the heading started with an
+            # infinite variance, and every number of the state went NaN (the WebSocket fuzzer)
         return fit.heading_rad, fit.variance_rad2
     moved_m = math.hypot(ends[2] - ends[0], ends[3] - ends[1])
     return (bearing_rad(*ends), (spread_m / moved_m) ** 2) if moved_m >= need_m else None

@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+import navsvc.fusion.road.filter as filter_module
 from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
 from navsvc.fusion.gnss import RoadDistance
 from navsvc.fusion.road.filter import RoadFilter
@@ -105,6 +106,19 @@ def test_standstill_gives_the_gyro_bias_at_start_up() -> None:
     road, _ = _run(_drive(STILL_S + 5.0, []))  # just after start-up
     assert road.state.initialized
     assert abs(road.state.x[GYRO_BIAS] - GYRO_BIAS_RPS) < math.radians(0.02)
+
+
+def test_a_start_up_heading_with_an_infinite_variance_starts_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Whatever gives it (a jump of the odometer's ticks beside fixes that did not move
+    gave one, and every number of the state went NaN), a start that is not finite is no
+    start: the filter waits, and emits nothing."""
+    monkeypatch.setattr(filter_module, "baseline_heading", lambda *_: (0.0, math.inf))
+    road, estimates = RoadFilter(FusionConfig(), FRAME), []
+    for p in _drive(STILL_S + 20.0, []):
+        estimates += road.apply(p)
+    assert not road.state.initialized and estimates == []
+    assert road.state.gps is not None and "not finite" in road.state.gps.reason
 
 
 def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:

@@ -64,8 +64,11 @@ def test_fixes_running_faster_than_the_odometer_drove_are_no_heading() -> None:
 
 
 def test_fixes_that_span_no_distance_say_nothing_of_the_heading() -> None:
+    """Nor give a start-up heading, however far the odometer says it drove (a jump of its
+    ticks, sent by the WebSocket fuzzer, started a heading with an infinite variance)."""
     for fit in (fit_track(_line(0.0, [0.0]), 3.0), fit_track(_line(0.0, [5.0, 5.0, 5.0]), 3.0)):
         assert fit.variance_rad2 == math.inf and fit.agrees
+        assert baseline_heading(fit, (0.0, 5.0, 0.0, 5.0), 200.0, 5.0, 15.0, 4.0) is None
 
 
 @given(st.floats(0.0, 2.0 * math.pi, exclude_max=True), st.floats(0.1, 3.0))

@@ -260,6 +260,9 @@ class RoadFilter:
         if not s.initialized:
             if isinstance(packet, GpsFix):
                 self._try_initialize(packet)
+                if s.initialized and not (np.isfinite(s.x).all() and np.isfinite(s.P).all()):
+                    s.initialized = False  # as after a fix: never a start no later packet
+                    s.gps = GpsUsage(False, 0.0, "initialising: the start was not finite")
                 return [self._estimate()] if s.initialized else []
             self._remember_turn(packet)
             self._remember_odometer(packet)
