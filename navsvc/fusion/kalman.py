@@ -185,9 +185,10 @@ def no_surer_than(P: Array, H: Array, R: Array, probability: float = 1.0) -> Arr
     for i in range(len(R)):
         p, r = float(H[i] @ P @ H[i]), float(R[i, i])
         removed = probability * (p - r)  # of the variance p along the row
-        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) or not probability > 0.0 \
+        R[i, i] = DROPPED_VARIANCE if p <= r * (1.0 + 1e-9) or not removed > 0.0 \
             else min(max(r, p * (p - removed) / removed), DROPPED_VARIANCE)  # a road all
-        # but ruled out beside a huge P: no infinite variance, which the inverse turns to NaN
+        # but ruled out beside a huge P: no infinite variance, which the inverse turns to NaN;
+        # nor a division by a share so small that the variance it removes rounds to zero
     return R
 
 
