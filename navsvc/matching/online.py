@@ -197,7 +197,7 @@ class OnlineMatcher:
             return self._start(e)
         # the wrong one of two roads that fork at a small angle: no heading error, and for a
         # long way no further than off_road_distance_m, but clearly off it for its sigma
-        if s.region is None and self._fits_poorly(e, proj.distance_m, proj.edge):
+        if s.region is None and self._fits_poorly(e, proj.distance_m, proj):
             return self._start(e)
         if s.against_since_t is not None and e.t - s.against_since_t >= c.lost_after_s:
             s.edge, s.region, s.against_since_t = None, None, None
@@ -206,26 +206,25 @@ class OnlineMatcher:
         return None
 
     def _fits_poorly(self, e: FusedEstimate, distance_m: float,
-                     edge: EdgeKey | None = None) -> bool:
-        """Further than ``poor_fit_sigmas`` from the best road for ``poor_fit_after_s``, or
-        (given the matched ``edge``) farther than ``road_sigma_m`` from it and holding less
-        than ``rival_share`` of the likelihood of the roads beside it (:meth:`road_share`)
-        for as long: then the matcher forgets its road (the caller starts up again, which
-        takes the best). The share catches the wrong branch of a fork taken in an outage:
-        the estimate ran beside the road it drove, 11 m off, and 15 m from the matched one,
-        inside the distance rule, until the feedback of the matched road pulled it there
-        (Monaco 546 of the tune split: 1.37 -> 0.45x raw GPS, drift 11.3 -> 1.4 %). Tune
-        split, 600 drives: mean log fused/raw -0.2 % (3 better, 2 worse), drives above 0.9x
-        raw 10 -> 9, drift over 4 % 5 -> 4; a share of 0.4 gave the same. In the weaker
-        configurations (120 drives each) it is a coin flip where the estimate is surer than
-        it should be (steering Andorra 42: 18 m off with a sigma of 3.6, it took a road that
-        led away, 0.70 -> 2.80x): gyro_accel +1.6 % (3 better, 4 worse), steering +1.5 %
-        (1/3), GPS alone +0.9 % (4/5), strapdown +0.3 % (0/2), rules and fuzzy -0.1 % and
-        -0.4 % (1/0, 2/0)."""
+                     matched: EdgeProjection | None = None) -> bool:
+        """Further than ``poor_fit_sigmas`` from the best road for ``poor_fit_after_s``, or (given
+        the ``matched`` road's projection) farther than ``road_sigma_m`` from it and holding less
+        than ``rival_share`` of the likelihood of the roads beside it (:meth:`road_share`) for as
+        long: then the matcher forgets its road (the caller starts up again, which takes the best).
+        The share catches the wrong branch of a fork taken in an outage: the estimate ran beside the
+        road it drove, 11 m off, and 15 m from the matched one, inside the distance rule, until the
+        feedback of the matched road pulled it there (Monaco 546 of the tune split: 1.37 -> 0.45x
+        raw GPS, drift 11.3 -> 1.4 %). Tune split, 600 drives: mean log fused/raw -0.2 % (3 better,
+        2 worse), drives above 0.9x raw 10 -> 9, drift over 4 % 5 -> 4; a share of 0.4 gave the
+        same. In the weaker configurations (120 drives each) it is a coin flip where the estimate is
+        surer than it should be (steering Andorra 42: 18 m off with a sigma of 3.6, it took a road
+        that led away, 0.70 -> 2.80x): gyro_accel +1.6 % (3 better, 4 worse), steering +1.5 % (1/3),
+        GPS alone +0.9 % (4/5), strapdown +0.3 % (0/2), rules and fuzzy -0.1 % and -0.4 % (1/0,
+        2/0)."""
         c, s = self.config, self.state
         poor = distance_m > c.poor_fit_sigmas * math.hypot(c.road_sigma_m, e.tracking_sigma_m)
-        if not poor and edge is not None and distance_m > c.road_sigma_m:
-            poor = self.road_share(e, edge) < c.rival_share
+        if not poor and matched is not None and distance_m > c.road_sigma_m:
+            poor = self._share(e, matched) < c.rival_share
         s.poor_fit_since_t = (s.poor_fit_since_t if s.poor_fit_since_t is not None else e.t) \
             if poor else None
         if s.poor_fit_since_t is None or e.t - s.poor_fit_since_t < c.poor_fit_after_s:
@@ -336,13 +335,16 @@ class OnlineMatcher:
         the roads beside the estimate: 1 when no other could be the one driven, a half when
         another fits as well. A road whose end only lies near (the next edge of the same
         street) is not beside it."""
+        return self._share(e, self.graph.project(edge, e.x_m, e.y_m))
+
+    def _share(self, e: FusedEstimate, proj: EdgeProjection) -> float:
+        """:meth:`road_share` of the road of ``proj``, the estimate's projection onto it."""
         c = self.config
-        proj = self.graph.project(edge, e.x_m, e.y_m)
         matched = self._likelihood(e, proj, self._heading_error(e, proj))
         total = matched
         radius = 3.0 * math.hypot(c.road_sigma_m, e.tracking_sigma_m)
         for other in self.graph.edges_near(e.x_m, e.y_m, radius):
-            if other.edge != edge and 0.0 < other.offset_m < other.length_m:
+            if other.edge != proj.edge and 0.0 < other.offset_m < other.length_m:
                 total += self._likelihood(e, other, self._heading_error(e, other))
         return matched / total if total > 0.0 else 0.0
 

@@ -248,7 +248,7 @@ class RoadFilter:
             R = kalman.no_surer_than(s.P, H, R, m.probability)
         limit = kalman.gate_limit(len(z))
         x, P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
-        if not (np.isfinite(x).all() and np.isfinite(P).all()):  # as for a fix: never a
+        if not _finite(x, P):  # as for a fix: never a
             return False  # state no later packet can recover from
         s.x, s.P = x, P
         return nis <= limit
@@ -260,7 +260,7 @@ class RoadFilter:
         if not s.initialized:
             if isinstance(packet, GpsFix):
                 self._try_initialize(packet)
-                if s.initialized and not (np.isfinite(s.x).all() and np.isfinite(s.P).all()):
+                if s.initialized and not _finite(s.x, s.P):
                     s.initialized = False  # as after a fix: never a start no later packet
                     s.gps = GpsUsage(False, 0.0, "initialising: the start was not finite")
                 return [self._estimate()] if s.initialized else []
@@ -272,7 +272,7 @@ class RoadFilter:
         if isinstance(packet, GpsFix):
             before = self.snapshot()
             self._fuse_gps(packet)
-            if not (np.isfinite(self.state.x).all() and np.isfinite(self.state.P).all()):
+            if not _finite(self.state.x, self.state.P):
                 self.restore(before)  # never a state a later packet cannot recover from
                 self.state.gps = GpsUsage(False, 0.0, "refused: the update was not finite")
             self.state.last_output_t = packet.t
@@ -1818,6 +1818,12 @@ def _tracking_variance_m2(P: Array) -> float:
     for p, b in ((X_M, GPS_BIAS_E), (Y_M, GPS_BIAS_N)):
         total += P[p, p] + P[b, b] - 2.0 * P[p, b]
     return total / 2.0
+
+
+def _finite(x: Array, P: Array) -> bool:
+    """Every number of a state and its covariance is finite (a state no later packet can
+    recover from is never kept)."""
+    return bool(np.isfinite(x).all() and np.isfinite(P).all())
 
 
 def _reset_variance(P: Array, i: int, variance: float) -> None:
