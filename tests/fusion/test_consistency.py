@@ -91,7 +91,7 @@ def test_the_reported_position_sigma_is_never_overconfident(
         drives: list[list[dict[str, object]]], runs: Runs) -> None:
     inside, nees = [], []
     for drive, positions in zip(drives, runs(sensors)):
-        share, mean_nees = consistency(
+        share, mean_nees, _ = consistency(
             drive, [position_json(p, sample_graph.frame) for p in positions])
         assert share is not None and mean_nees is not None
         inside.append(share)

@@ -4,6 +4,7 @@ the targets' verdicts."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -15,6 +16,7 @@ from navsvc.sim.scorecard import (
     fixes_to_recover,
     max_error_with_gps_m,
     output_share,
+    pooled_circle_share,
     score,
 )
 from roadgraph import LocalFrame
@@ -41,8 +43,9 @@ def _estimate(t: float, error_m: float, sigma_m: float) -> dict[str, Any]:
 
 def test_circle_share_and_normalised_error() -> None:
     estimates = [_estimate(float(t), e, 1.0) for t, e in enumerate([0.0, 1.0, 2.4, 2.5])]
-    share, nees = consistency(DRIVE, estimates)
+    share, nees, epochs = consistency(DRIVE, estimates)
     assert share == 0.5 + 0.25  # 2.5 m is outside 2.45 sigma
+    assert epochs == 4
     assert nees == pytest.approx((0 + 1 + 2.4 ** 2 + 2.5 ** 2) / 4 / 2, rel=1e-4)
 
 
@@ -64,6 +67,16 @@ def test_targets_met_and_missed() -> None:
     assert verdicts == {"fused_to_raw_ratio": (0.95, False), "outage_drift_pct": (5.0, False),
                         "circle_share": (0.5, False),
                         "max_matched_error_with_gps_m": (51.0, False)}
+
+
+def test_the_pooled_circle_share_weighs_each_drive_by_its_epochs() -> None:
+    long_drive = replace(_card(0.5, 1.0, 0.95, 5.0), circle_epochs=300)
+    short_drive = replace(_card(0.5, 1.0, 0.5, 5.0), circle_epochs=100)
+    unscored = _card(0.5, 1.0, math.nan, 5.0)
+    unscored = replace(unscored, circle_share=None, circle_epochs=0)
+    assert pooled_circle_share([long_drive, short_drive, unscored]) == \
+        pytest.approx((0.95 * 300 + 0.5 * 100) / 400)
+    assert pooled_circle_share([unscored]) is None
 
 
 def test_no_scores_is_not_a_pass() -> None:
