@@ -132,6 +132,24 @@ def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:
     assert used[:5] == [True] * 5 and sum(used) >= 0.9 * len(used), after
 
 
+def test_fixes_refused_far_off_widen_the_reported_sigma_not_the_filters() -> None:
+    """A 50 m jump refused for 30 s: the estimate may be the one that is wrong, so its
+    reported sigma holds a third of the jump along it, fading after the fixes come back;
+    the filter's own covariance (what it weighs the next fix by) does not take it."""
+    road = RoadFilter(FusionConfig(), FRAME)
+    reported: dict[float, tuple[float, float]] = {}
+    for p in _drive(200.0, [(60.0, 90.0, 50.0)]):
+        for e in road.apply(p):
+            if isinstance(p, GpsFix):
+                own = math.sqrt((road.state.P[0, 0] + road.state.P[1, 1]) / 2.0)
+                reported[p.t] = (e.position_sigma_m, own)
+    before, first_refused, last_refused, late = (reported[t] for t in (59.0, 60.0, 89.0, 199.0))
+    assert before[0] < 3.0 and first_refused[1] < 3.0
+    assert first_refused[0] >= 50.0 / 3.0 / math.sqrt(2.0)  # along the jump, mean of two axes
+    assert last_refused[0] > 10.0 and last_refused[1] < 10.0
+    assert late[0] < 0.5 * last_refused[0] and late[0] < 2.0 * late[1]
+
+
 @pytest.mark.parametrize("turn_deg", [45.0, 120.0, 180.0])
 def test_a_heading_gone_wrong_is_left_once_the_fixes_path_shows_it(turn_deg: float) -> None:
     """The estimate's heading turned by ``turn_deg`` at 60 s, as a start-up on urban fixes

@@ -156,6 +156,8 @@ class RoadState:
     # the estimate shares with the fixes, reported in its covariance (not filtered on) ...
     gps_unseen_ratio: float = 0.0  # ... and the map-seen variance over the fixes', less one
     # (ekf; below zero when the map sees less error than their sigma says)
+    disagreement: tuple[float, float, float] | None = None  # ekf: (t, east, north) of the
+    # innovation of the latest fix past the gate: the estimate may be that far off
     gps_bias_t: float | None = None  # time of the GPS bias states
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
     off_road_since_t: float | None = None  # the estimate off the roads since (with a map)
@@ -868,7 +870,9 @@ class RoadFilter:
           widened to its distance beyond ``OFF_ROAD_ESTIMATE_M`` (:meth:`_widen_off_road`).
         - ``gps_bias_share`` of the sigma is an error that changes slowly (time constant
           ``gps_bias_tau_s``): two bias states carry it, so that averaging fixes does not
-          make the position look surer than it is; the rest is new at each fix."""
+          make the position look surer than it is; the rest is new at each fix.
+        - A fix past the gate, whatever is then decided, is reported as a doubt of the
+          estimate's position (:meth:`_disagreement_cov_m2`)."""
         s, cfg = self.state, self.config
         self._pause_refusals(dt_s)
         east, north = self._local(fix)
@@ -890,6 +894,8 @@ class RoadFilter:
         if not self.profile.gps_alone:  # without dead reckoning no path to turn
             self._remember_paths(fix.t, z, self._dead_reckon(fix.t), nis)
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
+            if math.isfinite(nis):
+                s.disagreement = (fix.t, float(y[0]), float(y[1]))
             refused = self._position_past_gate(fix, (east, north), (z, h, H, R), nis,
                                                (sigma, sigma_learnt), dt_s)
             if refused and s.initialized and course is not None and \
@@ -1796,19 +1802,44 @@ class RoadFilter:
         )
 
     def _position_cov_reported(self) -> tuple[Array, float]:
-        """The position covariance with the fixes' unseen error in it, and the variance
-        that error adds. With dead reckoning the Kalman covariance (ekf) is linear in the
-        fixes' variance, so it is scaled as for fixes that much noisier (or quieter, as
-        far as ``gps_map_min_ratio``). An estimate on GPS
+        """The position covariance with the fixes' unseen error and the latest
+        disagreement (:meth:`_disagreement_cov_m2`) in it, and the variance they add (which
+        the matcher leaves out of the track's own sigma). With dead reckoning the Kalman
+        covariance (ekf) is linear in the fixes' variance, so it is scaled as for fixes
+        that much noisier (or quieter, as far as ``gps_map_min_ratio``). An estimate on GPS
         alone follows the fixes, and the weighted modes' covariance does not follow their
         variance: those get it added in full (scaled, GPS alone held 86.8 % of its errors
         in the 2.45-sigma circle against 88.1 %; tune split, 30 drives)."""
         s = self.state
         P = s.P[:2, :2]
         if self.config.gps_mode == GpsMode.EKF and not self.profile.gps_alone:
-            return P * (1.0 + s.gps_unseen_ratio), \
-                s.gps_unseen_ratio * float(P[0, 0] + P[1, 1]) / 2.0
+            D = self._disagreement_cov_m2()
+            return P * (1.0 + s.gps_unseen_ratio) + D, \
+                s.gps_unseen_ratio * float(P[0, 0] + P[1, 1]) / 2.0 + float(np.trace(D)) / 2.0
         return P + s.gps_unseen_var_m2 * np.eye(2), s.gps_unseen_var_m2
+
+    def _disagreement_cov_m2(self) -> Array:
+        """What the latest fix past the gate says of the estimate: that it may be off by
+        that fix's innovation ``y``. Reported as ``y y^T / 9`` (a third of it as a sigma
+        along it), fading with the GPS bias's time constant; the filter's own covariance
+        is left alone (it decided, refusing or following the fix, and a wrong decision is
+        what no Kalman covariance holds).
+
+        Without it, the estimate that followed a non-line-of-sight run (or refused the
+        true fixes) reported the sigma of a filter that had fixes all along: on the tune
+        split's UrbanNav drives the 2.45-sigma circle held 86.9 % of the errors (mean over
+        199 drives), synthetic 92.9 % (400). Now 92.4 % and 94.6 %, the median drive 95.6 ->
+        97.9 %; fused RMS -0.2 % (10 drives better, 2 worse, no target count changed: the
+        map feedback's gate widens with it). Measured and left out (600 drives each):
+        ``y y^T / 4`` (the median drive 98.1 %, past the 90-98 % band), the same from every
+        fix past the Huber NIS, as 5 % of right fixes are (the median drive 98.6-99.2 %,
+        the median synthetic drive 99.6 %), and fading in 10 s (98.6 %)."""
+        s = self.state
+        if s.disagreement is None or s.t is None:
+            return np.zeros((2, 2))
+        t, east, north = s.disagreement
+        y = np.array([east, north])
+        return np.outer(y, y) / 9.0 * math.exp(-max(s.t - t, 0.0) / self.config.gps_bias_tau_s)
 
 
 def _tracking_variance_m2(P: Array) -> float:
