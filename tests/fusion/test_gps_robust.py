@@ -150,6 +150,19 @@ def test_fixes_refused_far_off_widen_the_reported_sigma_not_the_filters() -> Non
     assert late[0] < 0.5 * last_refused[0] and late[0] < 2.0 * late[1]
 
 
+@pytest.mark.parametrize("mode", [GpsMode.RULES, GpsMode.FUZZY])
+def test_the_weighted_modes_report_a_fix_past_the_gate_as_a_doubt_too(mode: GpsMode) -> None:
+    road = RoadFilter(FusionConfig(gps_mode=mode), FRAME)
+    reported: dict[float, tuple[float, float]] = {}
+    for p in _drive(61.0, [(60.0, 90.0, 50.0)]):
+        for e in road.apply(p):
+            if isinstance(p, GpsFix):
+                own = math.sqrt((road.state.P[0, 0] + road.state.P[1, 1]) / 2.0)
+                reported[p.t] = (e.position_sigma_m, own)
+    assert reported[59.0][0] < 3.0
+    assert reported[60.0][0] >= 50.0 / 3.0 / math.sqrt(2.0) and reported[60.0][1] < 3.0
+
+
 @pytest.mark.parametrize("turn_deg", [45.0, 120.0, 180.0])
 def test_a_heading_gone_wrong_is_left_once_the_fixes_path_shows_it(turn_deg: float) -> None:
     """The estimate's heading turned by ``turn_deg`` at 60 s, as a start-up on urban fixes

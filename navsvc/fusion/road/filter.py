@@ -156,7 +156,7 @@ class RoadState:
     # the estimate shares with the fixes, reported in its covariance (not filtered on) ...
     gps_unseen_ratio: float = 0.0  # ... and the map-seen variance over the fixes', less one
     # (ekf; below zero when the map sees less error than their sigma says)
-    disagreement: tuple[float, float, float] | None = None  # ekf: (t, east, north) of the
+    disagreement: tuple[float, float, float] | None = None  # (t, east, north) of the
     # innovation of the latest fix past the gate: the estimate may be that far off
     gps_bias_t: float | None = None  # time of the GPS bias states
     gps_bias_sigma_m: float = 0.0  # steady sigma of the GPS bias (from the fixes' sigma)
@@ -900,8 +900,7 @@ class RoadFilter:
         if not self.profile.gps_alone:  # without dead reckoning no path to turn
             self._remember_paths(fix.t, z, self._dead_reckon(fix.t), nis)
         if not nis <= kalman.gate_limit(2, cfg.gps_gate_scale):  # NaN too
-            if math.isfinite(nis):
-                s.disagreement = (fix.t, float(y[0]), float(y[1]))
+            self._note_disagreement(fix.t, y, nis)
             refused = self._position_past_gate(fix, (east, north), (z, h, H, R), nis,
                                                (sigma, sigma_learnt), dt_s)
             if refused and s.initialized and course is not None and \
@@ -1583,6 +1582,8 @@ class RoadFilter:
         m = self._weighted_position(east, north, white * math.sqrt(fixes_per_s))
         z, h, H, R = m
         nis = kalman.nis(s.P, H, R, z - h)
+        if not nis <= kalman.gate_limit(2):
+            self._note_disagreement(fix.t, z - h, nis)
         distance = math.hypot(east - s.x[X_M], north - s.x[Y_M])
         speed = self._weighted_speed(fix)
         if cfg.gps_mode == GpsMode.RULES:
@@ -1817,12 +1818,17 @@ class RoadFilter:
         variance: those get it added in full (scaled, GPS alone held 86.8 % of its errors
         in the 2.45-sigma circle against 88.1 %; tune split, 30 drives)."""
         s = self.state
-        P = s.P[:2, :2]
+        P, D = s.P[:2, :2], self._disagreement_cov_m2()
+        doubt_var = float(np.trace(D)) / 2.0
         if self.config.gps_mode == GpsMode.EKF and not self.profile.gps_alone:
-            D = self._disagreement_cov_m2()
             return P * (1.0 + s.gps_unseen_ratio) + D, \
-                s.gps_unseen_ratio * float(P[0, 0] + P[1, 1]) / 2.0 + float(np.trace(D)) / 2.0
-        return P + s.gps_unseen_var_m2 * np.eye(2), s.gps_unseen_var_m2
+                s.gps_unseen_ratio * float(P[0, 0] + P[1, 1]) / 2.0 + doubt_var
+        return P + s.gps_unseen_var_m2 * np.eye(2) + D, s.gps_unseen_var_m2 + doubt_var
+
+    def _note_disagreement(self, t: float, innovation: Array, nis: float) -> None:
+        """A fix past the gate: the estimate may be off by its innovation."""
+        if math.isfinite(nis):
+            self.state.disagreement = (t, float(innovation[0]), float(innovation[1]))
 
     def _disagreement_cov_m2(self) -> Array:
         """What the latest fix past the gate says of the estimate: that it may be off by
@@ -1839,7 +1845,10 @@ class RoadFilter:
         map feedback's gate widens with it). Measured and left out (600 drives each):
         ``y y^T / 4`` (the median drive 98.1 %, past the 90-98 % band), the same from every
         fix past the Huber NIS, as 5 % of right fixes are (the median drive 98.6-99.2 %,
-        the median synthetic drive 99.6 %), and fading in 10 s (98.6 %)."""
+        the median synthetic drive 99.6 %), and fading in 10 s (98.6 %). The weighted
+        modes and GPS alone take it too (120 drives each, mean over drives): rules 86.3 ->
+        89.7 %, fuzzy 86.5 -> 89.6 %, GPS alone 87.0 -> 88.7 %; fused RMS -0.5, -1.1 and
+        -0.1 %, one drive worse."""
         s = self.state
         if s.disagreement is None or s.t is None:
             return np.zeros((2, 2))
