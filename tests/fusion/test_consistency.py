@@ -10,7 +10,7 @@ stay below 2: a filter may be cautious, never sure of a position it does not hav
 
 Measured on the test's own drives (pooled; since the map-seen error scales the reported
 covariance down as well as up): gyro + odometer 96.5 % inside (NEES per dof 0.64),
-steering + odometer 93.1 % (0.95), gyro + accelerometer 98.6 % (0.54), two accelerometers
+steering + odometer 93.1 % (0.94), gyro + accelerometer 98.6 % (0.54), two accelerometers
 99.3 % (0.48), GPS alone 99.0 % (0.51), the strapdown INS 100 % (0.33): inside the issue's
 90-98 % band for the first two, cautious for the rest.
 
