@@ -132,17 +132,25 @@ def test_a_jump_away_from_a_settled_track_is_refused_not_followed() -> None:
     assert used[:5] == [True] * 5 and sum(used) >= 0.9 * len(used), after
 
 
+def _sigmas_through_a_jump(config: FusionConfig, duration_s: float
+                           ) -> dict[float, tuple[float, float]]:
+    """At each fix of a drive whose fixes jump 50 m east from 60 to 90 s: the reported
+    position sigma and the filter's own (from its covariance)."""
+    road = RoadFilter(config, FRAME)
+    sigmas = {}
+    for p in _drive(duration_s, [(60.0, 90.0, 50.0)]):
+        for e in road.apply(p):
+            if isinstance(p, GpsFix):
+                own = math.sqrt((road.state.P[0, 0] + road.state.P[1, 1]) / 2.0)
+                sigmas[p.t] = (e.position_sigma_m, own)
+    return sigmas
+
+
 def test_fixes_refused_far_off_widen_the_reported_sigma_not_the_filters() -> None:
     """A 50 m jump refused for 30 s: the estimate may be the one that is wrong, so its
     reported sigma holds a third of the jump along it, fading after the fixes come back;
     the filter's own covariance (what it weighs the next fix by) does not take it."""
-    road = RoadFilter(FusionConfig(), FRAME)
-    reported: dict[float, tuple[float, float]] = {}
-    for p in _drive(200.0, [(60.0, 90.0, 50.0)]):
-        for e in road.apply(p):
-            if isinstance(p, GpsFix):
-                own = math.sqrt((road.state.P[0, 0] + road.state.P[1, 1]) / 2.0)
-                reported[p.t] = (e.position_sigma_m, own)
+    reported = _sigmas_through_a_jump(FusionConfig(), 200.0)
     before, first_refused, last_refused, late = (reported[t] for t in (59.0, 60.0, 89.0, 199.0))
     assert before[0] < 3.0 and first_refused[1] < 3.0
     assert first_refused[0] >= 50.0 / 3.0 / math.sqrt(2.0)  # along the jump, mean of two axes
@@ -152,13 +160,7 @@ def test_fixes_refused_far_off_widen_the_reported_sigma_not_the_filters() -> Non
 
 @pytest.mark.parametrize("mode", [GpsMode.RULES, GpsMode.FUZZY])
 def test_the_weighted_modes_report_a_fix_past_the_gate_as_a_doubt_too(mode: GpsMode) -> None:
-    road = RoadFilter(FusionConfig(gps_mode=mode), FRAME)
-    reported: dict[float, tuple[float, float]] = {}
-    for p in _drive(61.0, [(60.0, 90.0, 50.0)]):
-        for e in road.apply(p):
-            if isinstance(p, GpsFix):
-                own = math.sqrt((road.state.P[0, 0] + road.state.P[1, 1]) / 2.0)
-                reported[p.t] = (e.position_sigma_m, own)
+    reported = _sigmas_through_a_jump(FusionConfig(gps_mode=mode), 61.0)
     assert reported[59.0][0] < 3.0
     assert reported[60.0][0] >= 50.0 / 3.0 / math.sqrt(2.0) and reported[60.0][1] < 3.0
 
