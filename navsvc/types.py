@@ -107,7 +107,7 @@ class FusedEstimate:
     initialized: bool = True
     gps: GpsUsage | None = None
     gps_bias_var_m2: float = 0.0  # of position_cov, the GPS error that no averaging removes
-    # (and, ekf, the latest disagreement with a fix): not the track's own uncertainty
+    # (and the latest disagreement with a fix): not the track's own uncertainty
 
     @cached_property
     def position_sigma_m(self) -> float:
