@@ -194,3 +194,31 @@ def test_random_streams_never_break_the_strapdown_engine(stream: list[dict]) -> 
         if engine.ins is not None:
             p = engine.ins.P
             assert np.allclose(p, p.T) and np.linalg.eigvalsh(p).min() > 0.0
+
+
+def test_a_fix_past_the_gate_widens_the_reported_sigma_not_the_ins() -> None:
+    """A car driving north at 10 m/s, fixes a second to 1 m; at 30 s they leap 50 m east.
+    The INS refuses the leap (then takes it inflated: it may be the one that is wrong); the
+    estimate it reports may be off by the leap, so its sigma holds a third of it along the
+    leap from the first refused fix, while the INS's own covariance stays that of a filter
+    with good fixes, and the doubt fades afterwards."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    reported: dict[float, tuple[float, float]] = {}
+    for k in range(100 * 120):
+        t = k / 100.0
+        ins.apply(ImuSample(t, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=(0.0, 0.0, 9.81)))
+        if k % 10 == 0:
+            ins.apply(OdometerSample(t, speed_mps=10.0))
+        if k % 100 == 0:
+            east = 50.0 if 30.0 <= t < 40.0 else 0.0
+            lon, lat = frame.to_wgs84(east, 10.0 * t)
+            for e in ins.apply(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0,
+                                      speed_mps=10.0, heading_rad=0.0)):
+                assert ins.ins is not None
+                own = ins.ins.position_cov_ned_m2()
+                reported[t] = (e.position_sigma_m, math.sqrt((own[0, 0] + own[1, 1]) / 2.0))
+    before, first_refused, late = reported[29.0], reported[30.0], reported[119.0]
+    assert before[0] < 3.0 and first_refused[1] < 3.0
+    assert first_refused[0] >= 50.0 / 3.0 / math.sqrt(2.0)  # along the leap, mean of two axes
+    assert late[0] < 0.5 * first_refused[0]

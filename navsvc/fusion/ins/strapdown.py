@@ -30,7 +30,7 @@ from typing import TypeVar
 import numpy as np
 
 from navsvc.errors import ConfigError, PacketError, RejectReason
-from navsvc.fusion import odometer
+from navsvc.fusion import kalman, odometer
 from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import (
@@ -38,12 +38,13 @@ from navsvc.fusion.gnss import (
     MapSeenError,
     RoadDistance,
     baseline_heading,
+    disagreement_cov_m2,
     fit_track,
     gps_problem,
     gps_sigma_m,
 )
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
-from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
+from navsvc.fusion.ins.error_state import GATE_FLOOR_M, GnssFix, ImuNoise, InsFilter, Integration
 from navsvc.fusion.ins.measurements import (
     AcrossRoad,
     BodyVelocity,
@@ -113,6 +114,8 @@ class StrapdownState:
     last_fix_t: float | None = None
     gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
     gps_unseen_var_m2: float = 0.0  # what of it the fixes' sigma does not hold (reported)
+    disagreement: tuple[float, float, float] | None = None  # (t, east, north) of the
+    # innovation of the latest fix past the gate: the estimate may be that far off
     # alignment without a GPS course: the fixes since the baseline began (t, east, north,
     # odometer distance), and the distance driven and the turn made since then
     baseline: tuple[tuple[float, float, float, float], ...] = ()
@@ -324,14 +327,33 @@ class StrapdownFilter:
             s.height_m = fix.alt_m
         # without a GPS height, the last one known (loosely) keeps the vertical channel bounded
         h_sigma = 2.0 * sigma if fix.alt_m is not None else NO_HEIGHT_SIGMA_M
-        used = s.ins.update(GnssPosition(GnssFix(
+        position = GnssPosition(GnssFix(
             fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg), s.height_m,
-            np.array([sigma, sigma, h_sigma]))))
+            np.array([sigma, sigma, h_sigma])))
+        self._note_disagreement(fix.t, position)
+        used = s.ins.update(position)
         self._gps_velocity(fix)
         s.gps = GpsUsage(True, 1.0, "accepted") if used else \
             GpsUsage(False, 0.0, "gated: innovation too large")
         s.last_output_t = fix.t
         return [self._estimate()]
+
+    def _note_disagreement(self, t: float, position: GnssPosition) -> None:
+        """A fix past the gate (the INS's own, with its floor) is reported as a doubt of
+        the estimate (:func:`navsvc.fusion.gnss.disagreement_cov_m2`), whatever the INS
+        then does with it, as the road filter reports it. Tune split, 120 harsh drives:
+        the 2.45-sigma circle held 84.8 % of all the epochs' errors, now 88.2 % (the median
+        drive 91.4 -> 95.0 %); the estimates are unchanged. Measured and left out: fixes
+        faster than 1 Hz weighed as one a second (their sigma times the square root of the
+        rate, as the road filter weighs them): fused RMS +0.4 % (24 drives better, 35
+        worse by more than 5 %), the circle 84.8 -> 83.3 % without the doubt."""
+        s = self.state
+        assert s.ins is not None
+        z, h, H, R = position.model(s.ins)
+        y = z - h
+        if kalman.nis(s.ins.P, H, R + GATE_FLOOR_M ** 2 * np.eye(len(y)), y) > \
+                kalman.gate_limit(position.gate_dof):
+            s.disagreement = (t, float(y[1]), float(y[0]))  # (east, north) of north, east
 
     def _learn_gps_error_from_map(self, fix: GpsFix, sigma_m: float) -> None:
         """The fixes' error as the map sees it (:class:`MapSeenError`), while moving and
@@ -439,15 +461,17 @@ class StrapdownFilter:
         # (east, north) = (x, y); the INS takes fixes as independent, so the error that
         # averaging them does not remove (the road filter's bias states) is added here: it
         # reported 1-2 m while the fixes' correlated error kept it 5 m off
-        bias = self.state.gps_bias_var_m2 + self.state.gps_unseen_var_m2
-        cov = np.array([[p[1, 1] + bias, p[1, 0]], [p[0, 1], p[0, 0] + bias]])
+        s = self.state
+        doubt = disagreement_cov_m2(s.disagreement, n.t, self.config.gps_bias_tau_s)
+        bias = s.gps_bias_var_m2 + s.gps_unseen_var_m2
+        cov = np.array([[p[1, 1] + bias, p[1, 0]], [p[0, 1], p[0, 0] + bias]]) + doubt
         yaw_rate = 0.0 if rates is None else float(
             (n.c_bn @ (rates[0] - n.gyro_bias_rps))[2])
         return FusedEstimate(t=n.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(n.c_bn)[2],
                              speed_mps=float(math.hypot(n.v_ned[0], n.v_ned[1])),
                              yaw_rate_rps=yaw_rate, position_cov_m2=cov,
                              heading_sigma_rad=ins.heading_sigma_rad(), gps=self.state.gps,
-                             gps_bias_var_m2=bias)
+                             gps_bias_var_m2=bias + float(np.trace(doubt)) / 2.0)
 
 
 T = TypeVar("T")

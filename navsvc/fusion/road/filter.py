@@ -31,6 +31,7 @@ from navsvc.fusion.gnss import (
     RoadDistance,
     TrackFit,
     baseline_heading,
+    disagreement_cov_m2,
     fit_track,
     gps_problem,
     gps_sigma_m,
@@ -1831,11 +1832,8 @@ class RoadFilter:
             self.state.disagreement = (t, float(innovation[0]), float(innovation[1]))
 
     def _disagreement_cov_m2(self) -> Array:
-        """What the latest fix past the gate says of the estimate: that it may be off by
-        that fix's innovation ``y``. Reported as ``y y^T / 9`` (a third of it as a sigma
-        along it), fading with the GPS bias's time constant; the filter's own covariance
-        is left alone (it decided, refusing or following the fix, and a wrong decision is
-        what no Kalman covariance holds).
+        """The latest fix past the gate as a doubt of the estimate
+        (:func:`navsvc.fusion.gnss.disagreement_cov_m2`).
 
         Without it, the estimate that followed a non-line-of-sight run (or refused the
         true fixes) reported the sigma of a filter that had fixes all along: on the tune
@@ -1850,11 +1848,7 @@ class RoadFilter:
         89.7 %, fuzzy 86.5 -> 89.6 %, GPS alone 87.0 -> 88.7 %; fused RMS -0.5, -1.1 and
         -0.1 %, one drive worse."""
         s = self.state
-        if s.disagreement is None or s.t is None:
-            return np.zeros((2, 2))
-        t, east, north = s.disagreement
-        y = np.array([east, north])
-        return np.outer(y, y) / 9.0 * math.exp(-max(s.t - t, 0.0) / self.config.gps_bias_tau_s)
+        return disagreement_cov_m2(s.disagreement, float(s.t or 0.0), self.config.gps_bias_tau_s)
 
 
 def _tracking_variance_m2(P: Array) -> float:
