@@ -222,3 +222,29 @@ def test_a_fix_past_the_gate_widens_the_reported_sigma_not_the_ins() -> None:
     assert before[0] < 3.0 and first_refused[1] < 3.0
     assert first_refused[0] >= 50.0 / 3.0 / math.sqrt(2.0)  # along the leap, mean of two axes
     assert late[0] < 0.5 * first_refused[0]
+
+
+def test_an_ins_far_from_fixes_that_agree_aligns_again_from_them() -> None:
+    """Fixes that lie 300 m from the INS, farther than any non-line-of-sight error, for
+    two seconds: the INS is lost, not they (a long outage on a wrong heading leaves it so).
+    It starts over and aligns from them; its soft gate had taken them a metre a fix."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    off: dict[float, tuple[float, str]] = {}
+    for k in range(100 * 45):
+        t = k / 100.0
+        ins.apply(ImuSample(t, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=(0.0, 0.0, 9.81)))
+        if k % 10 == 0:
+            ins.apply(OdometerSample(t, speed_mps=10.0))
+        if k % 100 == 0:
+            east = 300.0 if t >= 30.0 else 0.0
+            lon, lat = frame.to_wgs84(east, 10.0 * t)
+            out = ins.apply(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0,
+                                   speed_mps=10.0, heading_rad=0.0))
+            assert ins.state.gps is not None
+            distance = math.inf if not out else math.hypot(out[-1].x_m - east,
+                                                           out[-1].y_m - 10.0 * t)
+            off[t] = (distance, ins.state.gps.reason)
+    assert off[29.0][0] < 3.0
+    assert any(reason.startswith("lost") for _, reason in (off[t] for t in (31.0, 32.0, 33.0)))
+    assert all(off[t][0] < 3.0 for t in range(36, 45)), off

@@ -118,6 +118,8 @@ class StrapdownState:
     gps_unseen_var_m2: float = 0.0  # what of it the fixes' sigma does not hold (reported)
     disagreement: tuple[float, float, float] | None = None  # (t, east, north) of the
     # innovation of the latest fix past the gate: the estimate may be that far off
+    lost_since_t: float | None = None  # fixes past the gate, and beyond any non-line-of-
+    # sight error from the estimate, since then
     # alignment without a GPS course: the fixes since the baseline began (t, east, north,
     # odometer distance), and the distance driven and the turn made since then
     baseline: tuple[tuple[float, float, float, float], ...] = ()
@@ -332,7 +334,12 @@ class StrapdownFilter:
         position = GnssPosition(GnssFix(
             fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg), s.height_m,
             np.array([sigma, sigma, h_sigma])))
-        self._note_disagreement(fix.t, position)
+        offset_m = self._note_disagreement(fix.t, position)
+        if self._lost(fix.t, offset_m):
+            self._start_over()
+            s.gps = GpsUsage(False, 0.0, "lost: the fixes lie beyond any non-line-of-sight "
+                             "error from the estimate; aligning again")
+            return []
         used = s.ins.update(position)
         self._gps_velocity(fix)
         s.gps = GpsUsage(True, 1.0, "accepted") if used else \
@@ -340,10 +347,32 @@ class StrapdownFilter:
         s.last_output_t = fix.t
         return [self._estimate()]
 
-    def _note_disagreement(self, t: float, position: GnssPosition) -> None:
+    def _lost(self, t: float, offset_m: float | None) -> bool:
+        """The fixes have lain past the gate and farther than any non-line-of-sight error
+        (``gps_lost_beyond_m``) from the estimate for ``gps_lost_after_s``, as the road filter
+        judges it: the INS is lost, not the fixes. Its soft gate had taken them inflated to
+        the gate, a metre a fix, while it reported a sigma of 11 m 1.3 km off (it had
+        dead-reckoned 170 s on a heading from urban fixes; Stockholm 100140 of the report
+        split: 85x raw GPS)."""
+        s, cfg = self.state, self.config
+        if offset_m is None or offset_m <= cfg.gps_lost_beyond_m:
+            s.lost_since_t = None
+            return False
+        if s.lost_since_t is None:
+            s.lost_since_t = t
+        return t - s.lost_since_t >= cfg.gps_lost_after_s
+
+    def _start_over(self) -> None:
+        """Forget the INS; it aligns again from the next fixes (:meth:`_try_align`)."""
+        s = self.state
+        s.ins, s.lost_since_t, s.disagreement = None, None, None
+        s.baseline, s.travelled_m, s.turned_rad = (), 0.0, 0.0
+
+    def _note_disagreement(self, t: float, position: GnssPosition) -> float | None:
         """A fix past the gate (the INS's own, with its floor) is reported as a doubt of
         the estimate (:func:`navsvc.fusion.gnss.disagreement_cov_m2`), whatever the INS
-        then does with it, as the road filter reports it; as half the innovation for a
+        then does with it, as the road filter reports it (its horizontal size returned; None
+        within the gate); as half the innovation for a
         sigma (``DOUBT_SIGMAS``), where the road filter reports a third: after three
         refusals the INS takes such fixes (inflated), so it follows a wrong run sooner
         than the road filter, which refuses a jump for up to ``max_jump_s``. Tune split,
@@ -360,6 +389,8 @@ class StrapdownFilter:
         if kalman.nis(s.ins.P, H, R + GATE_FLOOR_M ** 2 * np.eye(len(y)), y) > \
                 kalman.gate_limit(position.gate_dof):
             s.disagreement = (t, float(y[1]), float(y[0]))  # (east, north) of north, east
+            return math.hypot(y[0], y[1])
+        return None
 
     def _learn_gps_error_from_map(self, fix: GpsFix, sigma_m: float) -> None:
         """The fixes' error as the map sees it (:class:`MapSeenError`), while moving and
