@@ -62,6 +62,8 @@ class FusionConfig:
     # track while a jump is being refused confirms the track carried through a gap
     max_jump_s: float = 60.0  # ekf: a jump away from a settled track is refused this long
     # at most (non-line-of-sight runs last 10-60 s) ...
+    jump_min_m: float = 10.0  # ... when it is this large: smaller is no non-line-of-sight
+    # leap (20-80 m), but the track drifting from precise fixes
     heading_unknown_sigma_rad: float = math.radians(20.0)  # ekf: a heading less sure than
     # this takes the receiver's course whole, and its track refuses no jump of the fixes
     jump_spread_m: float = 30.0  # ... while its fixes stay this close to the first (or 4

@@ -420,6 +420,19 @@ def test_a_leap_of_the_fixes_soon_after_start_up_is_refused_as_a_jump(fix_rate_h
     assert all(err < 3.0 for t, err, _ in fixes if t >= 35.0)
 
 
+def test_a_track_drifting_from_precise_fixes_is_no_jump_of_theirs() -> None:
+    """Fixes of 1 m lie 20 m east for a minute, then walk back in 2 m steps every 2 s: the
+    filter follows them, and the walk turns its heading a few degrees west, so its track
+    drifts from the fixes once they stop. Those fixes lie a few metres past the gate, many
+    sigmas but no non-line-of-sight leap (20-80 m): taken, not refused for a minute while
+    the track ran 95 m off."""
+    walk = [(60.0 + 2.0 * k, 62.0 + 2.0 * k, 18.0 - 2.0 * k) for k in range(9)]
+    _, fixes = _run(_drive(140.0, [(0.0, 60.0, 20.0), *walk]))
+    after = [f for f in fixes if f[0] >= 80.0]
+    assert not any(reason.startswith("refused: jumped") for _, _, reason in after), after
+    assert max(err for _, err, _ in after) < 3.0
+
+
 def test_a_gap_without_fixes_stops_the_clock_of_a_refused_jump() -> None:
     """The fixes leap 100 m east for 100 s, and 55 s of it have no fixes at all: when they
     come back the jump has been refused for 5 s of fixes, not 60 s, so they are still
