@@ -160,13 +160,15 @@ def test_fixes_refused_far_off_widen_the_reported_sigma_not_the_filters() -> Non
 
 
 @pytest.mark.parametrize(("config", "share"), [
-    (FusionConfig(gps_mode=GpsMode.RULES), 0.5), (FusionConfig(gps_mode=GpsMode.FUZZY), 0.5),
+    (FusionConfig(gps_mode=GpsMode.RULES), 1.0 / 2.0),
+    (FusionConfig(gps_mode=GpsMode.FUZZY), 1.0),
     (FusionConfig(sensors=SensorConfig.GPS_ONLY), 1.0)])
 def test_filters_that_follow_such_fixes_report_more_of_the_jump_as_a_doubt(
         config: FusionConfig, share: float) -> None:
-    """The weighted modes follow a fix past the gate slowly, GPS alone follows it: a wrong
-    decision leaves more of the jump in the estimate than with dead reckoning (a third),
-    and the reported sigma holds half of it, or all of it."""
+    """The weighted modes follow a fix past the gate slowly (the fuzzy sets even one past
+    the rules' 50 m), GPS alone follows it: a wrong decision leaves more of the jump in the
+    estimate than with dead reckoning (a third), and the reported sigma holds half of it,
+    or all of it."""
     reported = _sigmas_through_a_jump(config, 61.0)
     assert reported[59.0][0] < 3.0
     assert reported[60.0][0] >= share * 50.0 / math.sqrt(2.0) > 3.0 * reported[60.0][1]
