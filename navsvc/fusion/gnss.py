@@ -205,10 +205,10 @@ def turn_between_paths(estimate_m: np.ndarray, fixes_m: np.ndarray,
 
 
 def disagreement_cov_m2(disagreement: tuple[float, float, float] | None, t: float,
-                        tau_s: float, sigmas: float = 3.0) -> np.ndarray:
+                        tau_s: float, sigmas: float) -> np.ndarray:
     """What the latest fix past a filter's gate, ``(t, east, north)`` of its innovation
     ``y``, says of the estimate: that it may be off by ``y``. Reported as
-    ``y y^T / sigmas^2`` (by default a third of it as a sigma along it), fading with the GPS
+    ``y y^T / sigmas^2`` (``1 / sigmas`` of it as a sigma along it), fading with the GPS
     error's time constant ``tau_s``; the filter's own covariance is left alone (it decided,
     refusing or following the fix, and a wrong decision is what no Kalman covariance
     holds)."""

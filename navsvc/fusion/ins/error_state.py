@@ -148,7 +148,7 @@ class InsFilter:
         z, h, H, R = m.model(self)
         limit = kalman.gate_limit(m.gate_dof)
         if m.soft_gate:
-            nis = kalman.nis(self.P, H, R + GATE_FLOOR_M**2 * np.eye(len(z)), z - h)
+            nis = self.soft_gate_nis(H, R, z - h)
             if nis > limit:
                 self.gated += 1
                 if self.gated < GATED_BEFORE_SOFT:
@@ -162,6 +162,11 @@ class InsFilter:
             return False
         self._correct(dx)
         return True
+
+    def soft_gate_nis(self, H: Array, R: Array, y: Array) -> float:
+        """The NIS a soft-gated measurement's innovation ``y`` is gated by: its noise with
+        the gate's floor for the model error its own sigma leaves out (``GATE_FLOOR_M``)."""
+        return kalman.nis(self.P, H, R + GATE_FLOOR_M**2 * np.eye(len(y)), y)
 
     def position_cov_ned_m2(self) -> Array:
         """Covariance of the position (north, east, down; m²)."""

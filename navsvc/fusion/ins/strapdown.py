@@ -48,7 +48,7 @@ from navsvc.fusion.gnss import (
     gps_sigma_m,
 )
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
-from navsvc.fusion.ins.error_state import GATE_FLOOR_M, GnssFix, ImuNoise, InsFilter, Integration
+from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
 from navsvc.fusion.ins.measurements import (
     AcrossRoad,
     BodyVelocity,
@@ -392,8 +392,7 @@ class StrapdownFilter:
         assert s.ins is not None
         z, h, H, R = position.model(s.ins)
         y = z - h
-        if kalman.nis(s.ins.P, H, R + GATE_FLOOR_M ** 2 * np.eye(len(y)), y) > \
-                kalman.gate_limit(position.gate_dof):
+        if s.ins.soft_gate_nis(H, R, y) > kalman.gate_limit(position.gate_dof):
             s.disagreement = (t, float(y[1]), float(y[0]))  # (east, north) of north, east
             return math.hypot(y[0], y[1])
         return None

@@ -94,9 +94,7 @@ CORNERING_RPS = 0.1  # need not lie along any road (pulling up at a kerb, half-w
 # (_disagreement_cov_m2): with dead reckoning (ekf), which refuses such fixes and is mostly
 # right to; in the rules mode, which follows them slowly (and refuses them beyond 50 m); in
 # the fuzzy mode, whose sets blend even those, and on GPS alone, which follows them
-DOUBT_SIGMAS_DEAD_RECKONING = 3.0
-DOUBT_SIGMAS_RULES = 2.0
-DOUBT_SIGMAS_FUZZY = 1.0
+DOUBT_SIGMAS = {GpsMode.EKF: 3.0, GpsMode.RULES: 2.0, GpsMode.FUZZY: 1.0}
 DOUBT_SIGMAS_GPS_ALONE = 1.0
 STILL_CLUSTER_MIN_FIXES = 3  # fixes at a standstill before a leap away from them is a jump
 TURN_RATE_ERRORS = (GYRO_BIAS, GYRO_SCALE)  # what a fix past the gate leaves alone (ekf)
@@ -208,6 +206,8 @@ class RoadFilter:
         self.frame = frame
         self.road_distance = road_distance
         self.state = RoadState()
+        self._doubt_sigmas = DOUBT_SIGMAS_GPS_ALONE if self.profile.gps_alone \
+            else DOUBT_SIGMAS[config.gps_mode]
         self._gyro = self.profile.gyro  # read at every IMU sample
         tau = self.profile.turn_rate_tau_s
         self.process = config.process if config.process.turn_rate_tau_s is not None or \
@@ -1876,7 +1876,7 @@ class RoadFilter:
 
         Those follow what they take of such fixes, so a wrong decision leaves more of the
         innovation in the estimate: a half of it as a sigma in the rules mode, all of it in
-        the fuzzy mode and on GPS alone (``DOUBT_SIGMAS_*``). Tune split, pooled epochs: GPS
+        the fuzzy mode and on GPS alone (``DOUBT_SIGMAS``). Tune split, pooled epochs: GPS
         alone (600 drives) 88.2 -> 91.6 %, the median drive 90.5 -> 94.9 %, fused RMS +0.1 %
         (one drive worse by more than 5 %, through the map feedback's gate, which reads the
         sigma). Rules (60 drives each): a half took gyro_odometer from 85.9 to 87.9 % and
@@ -1887,13 +1887,8 @@ class RoadFilter:
         90.0-91.9 % (93.9-95.8 %), all of it 91.0-93.0 % (95.2-97.5 %); fused RMS 0 to
         -1.6 %, none worse."""
         s = self.state
-        if self.profile.gps_alone:
-            sigmas = DOUBT_SIGMAS_GPS_ALONE
-        else:
-            sigmas = {GpsMode.EKF: DOUBT_SIGMAS_DEAD_RECKONING, GpsMode.RULES: DOUBT_SIGMAS_RULES,
-                      GpsMode.FUZZY: DOUBT_SIGMAS_FUZZY}[self.config.gps_mode]
         return disagreement_cov_m2(s.disagreement, float(s.t or 0.0),
-                                   self.config.gps_bias_tau_s, sigmas)
+                                   self.config.gps_bias_tau_s, self._doubt_sigmas)
 
 
 def _tracking_variance_m2(P: Array) -> float:
