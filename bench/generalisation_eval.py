@@ -42,7 +42,14 @@ from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
 from navsvc.session import SessionConfig, VehicleSession
 from navsvc.sim.gnss_replay import GnssErrorRecording, parse_urbannav
 from navsvc.sim.harsh import harsh_urban_spec
-from navsvc.sim.scorecard import Scorecard, check, pooled_circle_share, score
+from navsvc.sim.scorecard import (
+    PHASES,
+    Scorecard,
+    check,
+    circle_by_phase,
+    pooled_circle_share,
+    score,
+)
 from navsvc.sim.simulate import SENSOR_KINDS, DriveSpec, simulate_drive
 from navsvc.wire.positions import position_json
 from roadgraph import RoadGraph
@@ -174,11 +181,13 @@ def _one_drive(job: tuple[str, int, float, bool, dict[str, float], str | None, b
         fusion = FusionConfig(sensors=sensors, gps_mode=mode, **overrides)  # type: ignore[arg-type]
         session = VehicleSession(SessionConfig(fusion, map_feedback=feedback), graph)
         result = session.add_records([r for r in drive if r["kind"] in kinds])
-        card = score(drive, [position_json(p, graph.frame) for p in result.positions],
-                     outage_start)
+        estimates = [position_json(p, graph.frame) for p in result.positions]
+        card = score(drive, estimates, outage_start)
         rows.append({"map": map_name, "seed": seed, "gps_error": "urbannav" if urbannav
                      else "synthetic", "sensors": sensors.value, "mode": mode.value,
                      "run_s": round(time.perf_counter() - started, 2), **asdict(card),
+                     "circle_by_phase": circle_by_phase(drive, estimates, outage_start,
+                                                        OUTAGE_LENGTH_S),
                      "profile": _profile(spec)})
     return rows
 
@@ -256,6 +265,18 @@ def _print_breakdown(rows: list[dict[str, Any]], key: str, title: str) -> None:
                         "max err w/ GPS m", "right road %"], table)
 
 
+def _print_phases(rows: list[dict[str, Any]], title: str) -> None:
+    """The 2.45-sigma circle by phase of the drive, pooled over the drives, with each
+    phase's share of all the epochs outside it."""
+    pooled = {p: [sum(r["circle_by_phase"][p][i] for r in rows) for i in (0, 1)]
+              for p in PHASES}
+    missed = sum(epochs - inside for inside, epochs in pooled.values())
+    table = [[p, epochs, _pct(inside / epochs) if epochs else math.nan,
+              _pct((epochs - inside) / missed) if missed else math.nan]
+             for p, (inside, epochs) in pooled.items()]
+    print_table(title, ["phase", "epochs", "in 2.45σ %", "of all epochs outside %"], table)
+
+
 def _print_configs(rows: list[dict[str, Any]],
                    configs: list[tuple[SensorConfig, GpsMode]]) -> None:
     table = []
@@ -306,6 +327,7 @@ def main() -> None:
     _print_targets(default, f"Targets, {name}: {head}")
     _print_breakdown(default, "map", f"By map ({name}; medians, max where said)")
     _print_breakdown(default, "gps_error", f"By GPS error model ({name})")
+    _print_phases(default, f"The 2.45-sigma circle by phase of the drive ({name}; pooled)")
     if len(configs) > 1:
         _print_configs(rows, configs)
     print(f"\nwall time {wall_s:.0f} s with {min(args.workers, 2)} workers")

@@ -109,6 +109,40 @@ def consistency(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]
         int(ok.sum())
 
 
+START_UP_S = (10.0, 30.0)  # the phases after the run's first estimate
+AFTER_OUTAGE_S = 10.0
+PHASES = ("start-up, first 10 s", "start-up, 10-30 s", "planned outage",
+          "10 s after the outage", "other epochs without GPS", "with GPS")
+
+
+def circle_by_phase(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
+                    outage_start_s: float, outage_length_s: float
+                    ) -> dict[str, tuple[int, int]]:
+    """Where the 2.45-sigma circle holds: (epochs inside, epochs) in each phase of the drive
+    (:data:`PHASES`; an epoch counts in the first that fits). A pooled share can meet its
+    band while one phase misses it: on the tune split (600 harsh drives) the drives held
+    93.6 % of their errors, the first 10 s after start-up 80.6 % and the next 20 s 86.3 %."""
+    est_t, err = _errors(drive, estimates, "fused_lat", "fused_lon")
+    t0, t1 = _truth_span(drive)
+    sigma = np.array([r["position_sigma_m"] for r in estimates if t0 <= r["t"] <= t1])
+    counts = {phase: (0, 0) for phase in PHASES}
+    if not len(est_t):
+        return counts
+    gps_t = np.sort([r["t"] for r in drive if r.get("kind") == "gps"])
+    last = np.searchsorted(gps_t, est_t, side="right") - 1
+    with_gps = (last >= 0) & (est_t - gps_t[np.maximum(last, 0)] < GPS_PRESENT_WINDOW_S)
+    outage_end_s = outage_start_s + outage_length_s
+    for t, e, s, gps in zip(est_t - est_t[0], err, sigma, with_gps):
+        t_drive = t + est_t[0]
+        phase = PHASES[0] if t < START_UP_S[0] else PHASES[1] if t < START_UP_S[1] else \
+            PHASES[2] if outage_start_s <= t_drive < outage_end_s else \
+            PHASES[3] if outage_end_s <= t_drive < outage_end_s + AFTER_OUTAGE_S else \
+            PHASES[5] if gps else PHASES[4]
+        inside, epochs = counts[phase]
+        counts[phase] = (inside + int(s > 0 and e <= CIRCLE_SIGMAS * s), epochs + int(s > 0))
+    return counts
+
+
 def _truth_span(drive: list[dict[str, Any]]) -> tuple[float, float]:
     t = [r["t"] for r in drive if r.get("kind") == "truth"]
     return min(t), max(t)

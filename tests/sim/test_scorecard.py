@@ -10,8 +10,10 @@ from typing import Any
 import pytest
 
 from navsvc.sim.scorecard import (
+    PHASES,
     Scorecard,
     check,
+    circle_by_phase,
     consistency,
     fixes_to_recover,
     max_error_with_gps_m,
@@ -47,6 +49,18 @@ def test_circle_share_and_normalised_error() -> None:
     assert share == 0.5 + 0.25  # 2.5 m is outside 2.45 sigma
     assert epochs == 4
     assert nees == pytest.approx((0 + 1 + 2.4 ** 2 + 2.5 ** 2) / 4 / 2, rel=1e-4)
+
+
+def test_the_circle_by_phase_counts_each_epoch_in_the_first_phase_that_fits() -> None:
+    """80 s with a planned outage from 35 to 45 s and another gap from 60 to 65 s; one
+    epoch in each phase lies outside 2.45 sigma."""
+    drive = [_at(float(t), kind="truth", heading_deg=90.0, u=1, v=2) for t in range(81)] + \
+        [_at(float(t), kind="gps") for t in range(81) if not (35 <= t < 45 or 60 <= t < 65)]
+    outside = {5, 15, 40, 47, 62, 70}
+    estimates = [_estimate(float(t), 3.0 if t in outside else 0.0, 1.0) for t in range(81)]
+    counts = circle_by_phase(drive, estimates, 35.0, 10.0)
+    assert list(counts) == list(PHASES)
+    assert list(counts.values()) == [(9, 10), (19, 20), (9, 10), (9, 10), (4, 5), (25, 26)]
 
 
 def test_max_error_counts_only_epochs_with_a_fix_in_the_second_before() -> None:
