@@ -47,12 +47,15 @@ def test_a_far_fix_counts_at_three_rms_and_a_repeated_time_not_at_all() -> None:
 
 def test_the_variance_ratio_scales_both_ways_within_its_bounds() -> None:
     """Fixes the map sees closer to the roads than their sigma says scale the reported
-    covariance down (to the floor at most); farther, up (to the cap); 1 until learnt."""
+    covariance down (to the floor at most); farther, up (to the cap); from 1 (nothing
+    learnt) as the evidence comes, all of it from half the memory."""
     seen = MapSeenError()
-    for _ in range(29):
+    assert seen.variance_ratio(4.0, MEMORY_S, 10.0, 0.25) == 1.0  # nothing learnt
+    for _ in range(15):
         seen = seen.updated(2.0, 1.0, MEMORY_S)
-    assert seen.variance_ratio(4.0, MEMORY_S, 10.0, 0.25) == 1.0  # not half the memory yet
-    seen = seen.updated(2.0, 1.0, MEMORY_S)
+    assert math.isclose(seen.variance_ratio(4.0, MEMORY_S, 10.0, 0.1), (1.0 + 0.25) / 2.0)
+    for _ in range(15):
+        seen = seen.updated(2.0, 1.0, MEMORY_S)
     assert math.isclose(seen.variance_ratio(4.0, MEMORY_S, 10.0, 0.1), 0.25)
     assert seen.variance_ratio(8.0, MEMORY_S, 10.0, 0.25) == 0.25  # the floor
     assert math.isclose(seen.variance_ratio(1.0, MEMORY_S, 10.0, 0.25), 4.0)
