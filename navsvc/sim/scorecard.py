@@ -128,15 +128,13 @@ def circle_by_phase(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]
     counts = {phase: (0, 0) for phase in PHASES}
     if not len(est_t):
         return counts
-    gps_t = np.sort([r["t"] for r in drive if r.get("kind") == "gps"])
-    last = np.searchsorted(gps_t, est_t, side="right") - 1
-    with_gps = (last >= 0) & (est_t - gps_t[np.maximum(last, 0)] < GPS_PRESENT_WINDOW_S)
     outage_end_s = outage_start_s + outage_length_s
-    for t, e, s, gps in zip(est_t - est_t[0], err, sigma, with_gps):
-        t_drive = t + est_t[0]
-        phase = PHASES[0] if t < START_UP_S[0] else PHASES[1] if t < START_UP_S[1] else \
-            PHASES[2] if outage_start_s <= t_drive < outage_end_s else \
-            PHASES[3] if outage_end_s <= t_drive < outage_end_s + AFTER_OUTAGE_S else \
+    for t, since_start_s, e, s, gps in zip(est_t, est_t - est_t[0], err, sigma,
+                                           _with_gps(drive, est_t)):
+        phase = PHASES[0] if since_start_s < START_UP_S[0] else \
+            PHASES[1] if since_start_s < START_UP_S[1] else \
+            PHASES[2] if outage_start_s <= t < outage_end_s else \
+            PHASES[3] if outage_end_s <= t < outage_end_s + AFTER_OUTAGE_S else \
             PHASES[5] if gps else PHASES[4]
         inside, epochs = counts[phase]
         counts[phase] = (inside + int(s > 0 and e <= CIRCLE_SIGMAS * s), epochs + int(s > 0))
@@ -160,12 +158,19 @@ def max_error_with_gps_m(drive: list[dict[str, Any]],
                          estimates: list[dict[str, Any]]) -> float | None:
     """The largest matched-position error at epochs with a GPS fix in the second before."""
     est_t, err = _errors(drive, estimates, "lat", "lon")
-    gps_t = np.sort([r["t"] for r in drive if r.get("kind") == "gps"])
-    if not len(est_t) or not len(gps_t):
-        return None
-    last = np.searchsorted(gps_t, est_t, side="right") - 1
-    has = (last >= 0) & (est_t - gps_t[np.maximum(last, 0)] < GPS_PRESENT_WINDOW_S)
+    has = _with_gps(drive, est_t)
     return float(err[has].max()) if has.any() else None
+
+
+def _with_gps(drive: list[dict[str, Any]], est_t: np.ndarray) -> np.ndarray:
+    """Which of the times ``est_t`` had a fix in the second before."""
+    gps_t = np.sort([r["t"] for r in drive if r.get("kind") == "gps"])
+    if not len(gps_t):
+        return np.zeros(len(est_t), dtype=bool)
+    last = np.searchsorted(gps_t, est_t, side="right") - 1
+    with_gps: np.ndarray = (last >= 0) & \
+        (est_t - gps_t[np.maximum(last, 0)] < GPS_PRESENT_WINDOW_S)
+    return with_gps
 
 
 def fixes_to_recover(drive: list[dict[str, Any]], estimates: list[dict[str, Any]],
