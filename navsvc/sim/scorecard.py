@@ -99,8 +99,7 @@ def consistency(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]
     """(share of epochs inside 2.45 sigma, mean squared error over sigma squared over 2,
     epochs scored)."""
     _, err = _errors(drive, estimates, "fused_lat", "fused_lon")
-    t0, t1 = _truth_span(drive)
-    sigma = np.array([r["position_sigma_m"] for r in estimates if t0 <= r["t"] <= t1])
+    sigma = _sigmas(drive, estimates)
     ok = sigma > 0
     if not ok.any():
         return None, None, 0
@@ -123,8 +122,7 @@ def circle_by_phase(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]
     band while one phase misses it: on the tune split (600 harsh drives) the drives held
     93.6 % of their errors, the first 10 s after start-up 80.6 % and the next 20 s 86.3 %."""
     est_t, err = _errors(drive, estimates, "fused_lat", "fused_lon")
-    t0, t1 = _truth_span(drive)
-    sigma = np.array([r["position_sigma_m"] for r in estimates if t0 <= r["t"] <= t1])
+    sigma = _sigmas(drive, estimates)
     counts = {phase: (0, 0) for phase in PHASES}
     if not len(est_t):
         return counts
@@ -139,6 +137,13 @@ def circle_by_phase(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]
         inside, epochs = counts[phase]
         counts[phase] = (inside + int(s > 0 and e <= CIRCLE_SIGMAS * s), epochs + int(s > 0))
     return counts
+
+
+def _sigmas(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]) -> np.ndarray:
+    """The reported sigmas of the estimates within the truth's time span (those of
+    :func:`_errors`, in its order)."""
+    t0, t1 = _truth_span(drive)
+    return np.array([r["position_sigma_m"] for r in estimates if t0 <= r["t"] <= t1])
 
 
 def _truth_span(drive: list[dict[str, Any]]) -> tuple[float, float]:
