@@ -115,8 +115,10 @@ class MatchedPosition(BaseModel):
     lon: float | None
     fused_lat: float | None = Field(description="the fusion's unconstrained estimate")
     fused_lon: float | None
-    heading_deg: float | None = Field(description="clockwise from north, 0-360")
-    speed_mps: float | None
+    heading_deg: float | None = Field(description="clockwise from north, 0-360; null while "
+                                      "initializing (not yet known)")
+    speed_mps: float | None = Field(description="null while initializing without a measured "
+                                    "speed")
     position_sigma_m: float | None = Field(description="1-sigma horizontal uncertainty")
     state: Literal["initializing", "on_road", "ambiguous", "off_road", "lost"]
     edge: PositionEdge | None

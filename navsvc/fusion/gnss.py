@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from navsvc.types import GpsFix, GpsFixType
+from navsvc.types import FusedEstimate, GpsFix, GpsFixType, GpsUsage
 from roadgraph.geometry import bearing_rad
 
 # A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
@@ -48,6 +48,20 @@ def gps_sigma_m(fix: GpsFix, uere_m: float, default_sigma_m: float) -> float:
     if fix.fix in _FIX_SIGMA_M:
         return _FIX_SIGMA_M[fix.fix]
     return default_sigma_m
+
+
+def unstarted_estimate(t: float, east_m: float, north_m: float, cov_m2: np.ndarray,
+                       speed_mps: float | None, gps: GpsUsage | None) -> FusedEstimate:
+    """Before start-up, while the heading is still unknown: where the fixes put the car,
+    with their covariance (all of it GPS error), a speed when one is measured, and no
+    heading (NaN: the wire sends null). Without it a car standing when the fixes came back
+    after a gap had no position for the rest of the drive (Monaco 516 of the tune split:
+    250 s), and a client had none until the car moved."""
+    return FusedEstimate(t=t, x_m=east_m, y_m=north_m, heading_rad=math.nan,
+                         speed_mps=math.nan if speed_mps is None else speed_mps,
+                         yaw_rate_rps=math.nan, position_cov_m2=cov_m2,
+                         heading_sigma_rad=math.inf, initialized=False, gps=gps,
+                         gps_bias_var_m2=float(np.trace(cov_m2)) / 2.0)
 
 
 class RoadDistance(Protocol):

@@ -120,7 +120,7 @@ class OnlineMatcher:
     # --- one epoch -----------------------------------------------------------------------
     def update(self, e: FusedEstimate) -> MatchedPosition:
         if not e.initialized:
-            return MatchedPosition(e, MatchState.INITIALIZING, e.x_m, e.y_m)
+            return self._before_start_up(e)
         s = self.state
         jumped = self._jumped(e)
         s.last_estimate = (e.t, e.x_m, e.y_m, e.tracking_sigma_m)
@@ -137,6 +137,22 @@ class OnlineMatcher:
         if s.region is not None:
             return self._in_region(e, proj)
         return self._on_road(e, proj)
+
+    def _before_start_up(self, e: FusedEstimate) -> MatchedPosition:
+        """Before the filter starts (its heading unknown, or re-acquiring): the nearest road
+        within the start-up radius, by distance alone, is reported but not taken as the road
+        (start-up weighs the heading too, once there is one)."""
+        lo, hi = self.config.startup_radius_m
+        radius = min(max(3.0 * e.position_sigma_m + 15.0, lo), hi)
+        near = self.graph.edges_near(e.x_m, e.y_m, radius, limit=1)
+        if not near:
+            return MatchedPosition(e, MatchState.INITIALIZING, e.x_m, e.y_m)
+        proj = near[0]
+        return MatchedPosition(
+            estimate=e, state=MatchState.INITIALIZING, x_m=proj.x_m, y_m=proj.y_m,
+            edge=self._edge_ref(proj), distance_to_road_m=proj.distance_m,
+            next_node=proj.edge.v, distance_to_next_node_m=proj.remaining_m,
+            road_bearing_rad=proj.bearing_rad)
 
     def _jumped(self, e: FusedEstimate) -> bool:
         """The estimate moved farther than its speed explains since the last update, by

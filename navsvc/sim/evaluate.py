@@ -223,8 +223,10 @@ def evaluate(drive: list[dict[str, Any]], estimates: list[dict[str, Any]]) -> Ev
     fused_at_gps, raw_at_fused = _same_epochs(est_t, fused_err, gps_t, raw_err)
     _, true_heading = truth.at(est_t)
     moving = np.interp(est_t, truth.t, truth.speed_mps) >= MIN_SPEED_FOR_HEADING_MPS
-    est_heading = np.radians([r["heading_deg"] for r in within]) if within else np.zeros(0)
-    heading_err = np.degrees(np.abs(np.angle(np.exp(1j * (est_heading - true_heading)))))[moving]
+    est_heading = np.radians([math.nan if r["heading_deg"] is None else r["heading_deg"]
+                              for r in within]) if within else np.zeros(0)
+    heading_err = np.degrees(np.abs(np.angle(np.exp(1j * (est_heading - true_heading)))))[
+        moving & np.isfinite(est_heading)]  # none before start-up
 
     est_road = [frozenset((r["edge"]["u"], r["edge"]["v"])) if r.get("edge") else None
                 for r in within]

@@ -113,7 +113,7 @@ def test_send_lists_refused_packets_by_line_and_closes_the_session(
     assert main(["send", str(drive), "--url", server.url, "--quiet"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].endswith(": 2 of 3 packets accepted, 1 rejected, 1 unreadable lines, "
-                           "0 positions; session closed")
+                           "2 positions; session closed")  # each fix, before start-up
     assert out[1:] == [
         f"  {drive}:2: malformed: not JSON (Expecting value at column 1)",
         f"  {drive}:3: out_of_range: a value is out of range: lat=91 (must be <= 90.0)"]

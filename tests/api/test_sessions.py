@@ -77,6 +77,22 @@ def test_position_before_and_after_the_first_fix(client: httpx.Client) -> None:
     assert {"t", "lat", "lon", "fused_lat", "fused_lon", "state", "edge", "gps"} <= set(p)
 
 
+def test_a_fix_of_a_car_standing_gives_a_position_before_the_heading_is_known(
+        client: httpx.Client) -> None:
+    """The first fix already gives a position (the contract: 404 only before it): the car
+    stands, so no heading is known yet (null), and the wheels say 0 m/s."""
+    s = new_session(client)
+    packets = [{"t": 0.0, "kind": "odometer", "speed_mps": 0.0},
+               {**GPS, "t": 0.1, "hdop": 1.0}]
+    out = client.post(f"/sessions/{s['id']}/packets", json=packets).json()
+    assert out["accepted"] == 2 and len(out["positions"]) == 1
+    p = client.get(f"/sessions/{s['id']}/position").json()
+    assert p == out["positions"][0]
+    assert p["state"] == "initializing" and p["heading_deg"] is None and p["speed_mps"] == 0.0
+    assert (p["fused_lat"], p["fused_lon"]) == pytest.approx((GPS["lat"], GPS["lon"]))
+    assert p["position_sigma_m"] > 0.0 and p["gps"]["reason"].startswith("initialising")
+
+
 def test_body_that_is_not_an_array(client: httpx.Client) -> None:
     s = new_session(client)
     r = client.post(f"/sessions/{s['id']}/packets", json={"t": 0, "kind": "gps"})

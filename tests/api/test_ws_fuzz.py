@@ -67,6 +67,7 @@ FUZZED_OPTIONS: list[dict[str, Any]] = [
 BYSTANDER_BATCH = 100
 POSITION_NUMBERS = ("lat", "lon", "fused_lat", "fused_lon", "heading_deg", "speed_mps",
                     "position_sigma_m")
+UNKNOWN_BEFORE_START_UP = ("heading_deg", "speed_mps")  # null while initializing
 
 
 # --- messages: JSON values with leaves resolved when sent --------------------------------
@@ -652,6 +653,8 @@ class Run:
         for p in positions:
             bad = [k for k in POSITION_NUMBERS if not isinstance(p.get(k), (int, float))
                    or not math.isfinite(p[k])]
+            if p.get("state") == "initializing":
+                bad = [k for k in bad if not (k in UNKNOWN_BEFORE_START_UP and p[k] is None)]
             if bad:
                 self.tally.problem("a position with non-finite numbers",
                                    f"{shown} -> {', '.join(f'{k}={p.get(k)}' for k in bad)}")

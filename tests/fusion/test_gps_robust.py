@@ -82,14 +82,20 @@ _north_road_distance = _north_road(0.0)  # the map of the drive
 def _run(packets: list[Packet], road_distance: RoadDistance | None = None,
          config: FusionConfig | None = None
          ) -> tuple[RoadFilter, list[tuple[float, float, str]]]:
-    """The filter after the drive, and (t, error m, GPS reason) at every fix."""
+    """The filter after the drive, and (t, error m, GPS reason) at every fix once it
+    started (before, the fix itself stands as the position: :func:`_unstarted`)."""
     road = RoadFilter(config or FusionConfig(), FRAME, road_distance)
     out = []
     for p in packets:
         for e in road.apply(p):
-            if isinstance(p, GpsFix) and e.gps is not None:
+            if isinstance(p, GpsFix) and e.gps is not None and not _unstarted(e):
                 out.append((p.t, math.hypot(e.x_m, e.y_m - _north_m(p.t)), e.gps.reason))
     return road, out
+
+
+def _unstarted(e: FusedEstimate) -> bool:
+    """An estimate from before start-up: the fix, no heading."""
+    return not e.initialized and math.isinf(e.heading_sigma_rad)
 
 
 def _first_estimate(road: RoadFilter, packets: list[Packet]) -> FusedEstimate:
@@ -113,12 +119,12 @@ def test_a_start_up_heading_with_an_infinite_variance_starts_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Whatever gives it (a jump of the odometer's ticks beside fixes that did not move
     gave one, and every number of the state went NaN), a start that is not finite is no
-    start: the filter waits, and emits nothing."""
+    start: the filter waits, and emits no start (only the fixes as they come)."""
     monkeypatch.setattr(filter_module, "baseline_heading", lambda *_: (0.0, math.inf))
     road, estimates = RoadFilter(FusionConfig(), FRAME), []
     for p in _drive(STILL_S + 20.0, []):
         estimates += road.apply(p)
-    assert not road.state.initialized and estimates == []
+    assert not road.state.initialized and all(_unstarted(e) for e in estimates)
     assert road.state.gps is not None and "not finite" in road.state.gps.reason
 
 
@@ -250,7 +256,7 @@ def _starts_between_and_leaves_the_run_at_its_end(start_s: float, end_s: float) 
     fixes = []  # (t, east, error, GPS reason)
     for p in _drive(120.0, [(start_s, end_s, 50.0)], accuracy_m=3.0):
         for e in road.apply(p):
-            if isinstance(p, GpsFix) and e.gps is not None:
+            if isinstance(p, GpsFix) and e.gps is not None and not _unstarted(e):
                 if not start:
                     start.append((p.t, e.x_m, math.sqrt(road.state.P[0, 0])))
                 fixes.append((p.t, e.x_m, math.hypot(e.x_m, e.y_m - _north_m(p.t)),
@@ -358,6 +364,42 @@ def test_without_an_odometer_a_leap_at_the_standstill_is_no_start_up_heading() -
     assert start is not None and start.t > STILL_S
     assert abs(math.remainder(start.heading_rad, 2.0 * math.pi)) < math.radians(20.0)
     assert start.speed_mps < 2.0 * SPEED_MPS
+
+
+def _unstarted_estimates(packets: list[Packet]) -> list[tuple[GpsFix, FusedEstimate]]:
+    road = RoadFilter(FusionConfig(), FRAME)
+    return [(p, e) for p in packets for e in road.apply(p) if _unstarted(e)]
+
+
+def test_before_start_up_each_fix_gives_the_mean_where_the_car_stands() -> None:
+    """Before the heading is known, every good fix gives an estimate: not started, no
+    heading (NaN, infinite sigma), at the mean of the fixes since the car stopped, with
+    the larger of their sigma and their scatter; a car that does not stand gets the fix."""
+    out = _unstarted_estimates(_drive(STILL_S + 8.0, [], noise_m=4.0, accuracy_m=2.0))
+    standing = [(p, e) for p, e in out if p.t <= STILL_S]
+    assert len(standing) == int(STILL_S) + 1  # each fix of the standstill
+    assert all(math.isnan(e.heading_rad) and not e.initialized for _, e in out)
+    assert all(e.speed_mps == 0.0 for _, e in standing)
+    errors = [math.hypot(e.x_m, e.y_m) for _, e in standing[3:]]
+    fix_errors = [math.hypot(*FRAME.to_local(p.lon_deg, p.lat_deg)) for p, _ in standing[3:]]
+    assert np.mean(errors) < 0.6 * np.mean(fix_errors)  # the mean of 4-11 fixes
+    assert standing[0][1].position_sigma_m == pytest.approx(2.0)  # one fix: its own
+    assert all(2.0 < e.position_sigma_m < 7.0 for _, e in standing[3:])  # their scatter
+    moving = [(p, e) for p, e in out if p.t > STILL_S]
+    for p, e in moving:
+        assert (e.x_m, e.y_m) == pytest.approx(FRAME.to_local(p.lon_deg, p.lat_deg))
+        assert e.speed_mps == pytest.approx(SPEED_MPS)
+
+
+def test_before_start_up_a_leap_at_the_standstill_is_where_the_start_would_put_it() -> None:
+    """Fixes that leap 50 m east while the car stands: the estimate before start-up sits
+    where the start would (``leap_onset_share`` of the way back), with the two tracks'
+    spread, not on the leapt fixes."""
+    out = _unstarted_estimates(_drive(STILL_S, [(5.0, 20.0, 50.0)]))
+    leapt = [e for p, e in out if p.t >= 8.0]
+    between_m = (1.0 - FusionConfig().leap_onset_share) * 50.0
+    assert leapt and all(abs(e.x_m - between_m) < 3.0 for e in leapt)
+    assert all(2.45 * math.sqrt(e.position_cov_m2[0, 0]) >= 50.0 - e.x_m for e in leapt)
 
 
 def test_a_leap_at_the_standstill_that_comes_back_leaves_nothing_behind() -> None:

@@ -80,10 +80,20 @@ def test_initializing_then_startup_picks_road_by_heading() -> None:
     matcher = OnlineMatcher(cross_graph())
     e = estimate(0.0, 1.0, -50.0, 0.0)
     first = matcher.update(FusedEstimate(**{**e.__dict__, "initialized": False}))
-    assert first.state == MatchState.INITIALIZING and first.edge is None
-    assert edge_of(matcher.update(e)) == (3, 0)  # heading north: the northbound edge
+    # before start-up: the nearest road by distance alone, in either direction ...
+    assert first.state == MatchState.INITIALIZING and edge_of(first) in {(0, 3), (3, 0)}
+    assert first.distance_to_road_m == pytest.approx(1.0)  # the estimate, 1 m east of it
+    assert edge_of(matcher.update(e)) == (3, 0)  # ... not taken: heading north, northbound
     other = OnlineMatcher(cross_graph())
     assert edge_of(other.update(estimate(0.0, 1.0, -50.0, 180.0))) == (0, 3)
+
+
+def test_before_start_up_no_road_is_reported_beyond_the_start_up_radius() -> None:
+    far = estimate(0.0, 200.0, -200.0, 0.0)
+    first = OnlineMatcher(cross_graph()).update(FusedEstimate(**{**far.__dict__,
+                                                                "initialized": False}))
+    assert first.state == MatchState.INITIALIZING and first.edge is None
+    assert (first.x_m, first.y_m) == (far.x_m, far.y_m)
 
 
 def test_off_road_after_a_while_then_back() -> None:

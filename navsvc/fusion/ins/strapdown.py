@@ -46,6 +46,7 @@ from navsvc.fusion.gnss import (
     fit_track,
     gps_problem,
     gps_sigma_m,
+    unstarted_estimate,
 )
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
@@ -326,7 +327,7 @@ class StrapdownFilter:
             s.standing = fix.speed_mps < self.options.still_speed_mps
         if s.ins is None:
             self._try_align(fix)
-            return [self._estimate()] if s.ins is not None else []
+            return [self._estimate() if s.ins is not None else self._unstarted_estimate(fix)]
         self._calibrate_odometer(fix)
         sigma = self._sigma_m(fix)
         s.gps_bias_var_m2 = (self.config.gps_bias_share * sigma) ** 2
@@ -493,6 +494,17 @@ class StrapdownFilter:
         s.baseline = ()
         s.last_output_t = fix.t
         s.gps = GpsUsage(True, 1.0, f"aligned: level from the IMU, {how}")
+
+    def _unstarted_estimate(self, fix: GpsFix) -> FusedEstimate:
+        """The fix as the position while the heading is unknown
+        (:func:`navsvc.fusion.gnss.unstarted_estimate`), with the error the map saw in the
+        fixes before a restart, if any."""
+        s = self.state
+        assert self.frame is not None
+        east, north = self.frame.to_local(fix.lon_deg, fix.lat_deg)
+        speed = s.odo_speed * s.odo_scale if s.odo_speed is not None else fix.speed_mps
+        variance = self._sigma_m(fix) ** 2 + s.gps_unseen_var_m2
+        return unstarted_estimate(fix.t, east, north, variance * np.eye(2), speed, s.gps)
 
     def _estimate(self) -> FusedEstimate:
         ins, rates = self.state.ins, self.state.rates
