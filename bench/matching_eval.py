@@ -25,8 +25,13 @@ peer's matched point is put on our edge of the same OSM way nearest it (directio
 peer's travel direction). Maps: ``maps/monaco.db``, and Andorra imported with
 ``roadgraph import tests/data/graphhopper/andorra.osm.pbf -o bench/.cache/andorra.db``.
 
+With ``--harsh`` the drives are the generalisation bench's harsh-urban ones instead
+(``generalisation_eval.harsh_drive``: randomised error levels, UrbanNav's real error replayed
+on every third, a start at a standstill, its 60 s outage mid-drive), with that bench's seed
+sets, so that the held-out drives are held out from its tuning too.
+
     python bench/matching_eval.py [--maps maps/monaco.db bench/.cache/andorra.db]
-        [--drives 10] [--duration 600] [--seeds report|tune] [--no-peers]
+        [--drives 10] [--duration 600] [--seeds report|tune] [--no-peers] [--harsh]
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import generalisation_eval
 from report import drives_parser, print_table, write_json
 from road_metrics import RoadScore, epochs_of, roads_at, score, truth_path
 from tqdm import tqdm
@@ -190,29 +196,37 @@ def _scored(seed: int, method: str, drive: list[dict[str, Any]],
                 score(truth, epochs, roads_at(estimates, epochs)), outage_s)
 
 
-def _one_drive(job: tuple[str, int, float]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Our three matchers on one drive: their rows, and the drive's truth and GPS records."""
-    map_path, seed, duration = job
+Drive = tuple[list[dict[str, Any]], tuple[float, float]]  # truth and GPS records, outage
+
+
+def _one_drive(job: tuple[str, int, float, bool]) -> tuple[list[dict[str, Any]], Drive]:
+    """Our three matchers on one drive: their rows, and the drive's truth and GPS records
+    with its outage (start, length)."""
+    map_path, seed, duration, harsh = job
     graph = RoadGraph.open(map_path)
-    spec = DriveSpec(duration_s=duration, seed=seed, outages=(outage(duration),),
-                     tunnels_block_gps=False)
-    drive = simulate_drive(graph, spec)
+    if harsh:
+        drive, _, outage_start = generalisation_eval.harsh_drive(graph, seed, duration)
+        outage_s = (outage_start, generalisation_eval.OUTAGE_LENGTH_S)
+    else:
+        outage_s = outage(duration)
+        drive = simulate_drive(graph, DriveSpec(duration_s=duration, seed=seed,
+                                                outages=(outage_s,), tunnels_block_gps=False))
     packets = [r for r in drive if r["kind"] in set(SENSOR_KINDS["gyro_odometer"])]
     rows = [_scored(seed, "nearest road (raw GPS)", drive, nearest_road_baseline(graph, drive),
-                    outage(duration))]
+                    outage_s)]
     for feedback in (False, True):
         session = VehicleSession(SessionConfig(map_feedback=feedback), graph)
         out = [position_json(p, graph.frame) for p in session.add_records(packets).positions]
         rows.append(_scored(seed, "matcher + feedback" if feedback else "matcher", drive, out,
-                            outage(duration)))
-    return rows, [r for r in drive if r["kind"] in ("truth", "gps")]
+                            outage_s))
+    return rows, ([r for r in drive if r["kind"] in ("truth", "gps")], outage_s)
 
 
 def _evaluate_map(map_path: Path, seeds: list[int], duration: float, workers: int,
-                  with_peers: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+                  with_peers: bool, harsh: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     rows: list[dict[str, Any]] = []
-    drives: dict[int, list[dict[str, Any]]] = {}
-    jobs = [(str(map_path), seed, duration) for seed in seeds]
+    drives: dict[int, Drive] = {}
+    jobs = [(str(map_path), seed, duration, harsh) for seed in seeds]
     with ProcessPoolExecutor(workers) as pool:
         for seed, (found, drive) in zip(seeds, tqdm(pool.map(_one_drive, jobs), total=len(jobs),
                                                     desc=f"drives on {map_path.stem}")):
@@ -220,18 +234,18 @@ def _evaluate_map(map_path: Path, seeds: list[int], duration: float, workers: in
             drives[seed] = drive
     quirks: dict[str, Any] = {}
     if with_peers:
-        found, quirks = _peer_rows(map_path, drives, duration)
+        found, quirks = _peer_rows(map_path, drives)
         rows += found
     for r in rows:
         r["map"] = map_path.stem
     return rows, quirks
 
 
-def _peer_rows(map_path: Path, drives: dict[int, list[dict[str, Any]]], duration: float
+def _peer_rows(map_path: Path, drives: dict[int, Drive]
                ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The peers' rows on the drives of one map, and how their fixes came out."""
     graph = RoadGraph.open(map_path)
-    ran = run_peers(map_path, graph, drives)
+    ran = run_peers(map_path, graph, {seed: drive for seed, (drive, _) in drives.items()})
     if ran is None:
         return [], {}
     peers, meta = ran
@@ -239,11 +253,11 @@ def _peer_rows(map_path: Path, drives: dict[int, list[dict[str, Any]]], duration
     rows, quirks = [], {"meta": meta}
     for name in PEERS:
         how: Counter[str] = Counter()
-        for seed, drive in drives.items():
+        for seed, (drive, outage_s) in drives.items():
             gps = [r for r in drive if r["kind"] == "gps"]
             estimates, counts = peer_estimates(graph, ways, gps, peers[name][seed])
             how += counts
-            rows.append(_scored(seed, name, drive, estimates, outage(duration)))
+            rows.append(_scored(seed, name, drive, estimates, outage_s))
         quirks[name] = dict(how)
         print(f"  {name}: fixes by outcome {dict(how)}")
     return rows, quirks
@@ -292,19 +306,27 @@ def main() -> None:
     parser.add_argument("--seeds", choices=("report", "tune"), default="report",
                         help="REPORT_SEEDS (held out, default) or TUNE_SEEDS")
     parser.add_argument("--no-peers", action="store_true", help="leave out OSRM and Valhalla")
+    parser.add_argument("--harsh", action="store_true",
+                        help="the generalisation bench's harsh-urban drives and seed sets")
     args = parser.parse_args()
-    pool = REPORT_SEEDS if args.seeds == "report" else TUNE_SEEDS
+    if args.harsh:
+        pool = generalisation_eval.REPORT_SEEDS if args.seeds == "report" \
+            else generalisation_eval.TUNE_SEEDS
+    else:
+        pool = REPORT_SEEDS if args.seeds == "report" else TUNE_SEEDS
     seeds = list(pool[:args.drives])
     rows: list[dict[str, Any]] = []
     quirks: dict[str, Any] = {}
     for map_path in args.maps or [args.map]:
         found, quirks[map_path.stem] = _evaluate_map(map_path, seeds, args.duration,
-                                                      args.workers, not args.no_peers)
+                                                      args.workers, not args.no_peers,
+                                                      args.harsh)
         rows += found
         at, length = outage(args.duration)
-        print_table(f"{map_path.stem}: online matching, {len(seeds)} {args.seeds} drives x "
-                    f"{args.duration:.0f} s, gyro + odometer, {length:.0f} s outage at "
-                    f"{at:.0f} s (navsvc.sim.evaluate)",
+        drives = "harsh-urban drives, 60 s outage mid-drive" if args.harsh else \
+            f"drives, {length:.0f} s outage at {at:.0f} s"
+        print_table(f"{map_path.stem}: online matching, {len(seeds)} {args.seeds} {drives} x "
+                    f"{args.duration:.0f} s, gyro + odometer (navsvc.sim.evaluate)",
                     ["method", "intersections", "correct %", "right road % (mean)",
                      "right road % (worst drive)", "position RMS m (median)",
                      "outage drift % (median)", "drift max %"],
@@ -317,6 +339,7 @@ def main() -> None:
                  "road changes % (worst)", "changes made", "unobservable per drive"],
                 road_table(rows))
     write_json("matching_eval", {"drives": len(seeds), "seeds": args.seeds, "seed_list": seeds,
+                                 "harsh": args.harsh,
                                  "duration_s": args.duration, "gps_sigma_m": GPS_SIGMA_M,
                                  "peer_outcomes": quirks, "rows": rows})
 
