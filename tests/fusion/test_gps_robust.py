@@ -94,8 +94,10 @@ def _run(packets: list[Packet], road_distance: RoadDistance | None = None,
 
 
 def _unstarted(e: FusedEstimate) -> bool:
-    """An estimate from before start-up: the fix, no heading."""
-    return not e.initialized and math.isinf(e.heading_sigma_rad)
+    """An estimate from before start-up (not the one at the fix that re-acquires): the
+    fixes, no heading."""
+    return not e.initialized and math.isinf(e.heading_sigma_rad) and \
+        e.gps is not None and e.gps.reason.startswith("initialising")
 
 
 def _first_estimate(road: RoadFilter, packets: list[Packet]) -> FusedEstimate:
@@ -853,7 +855,7 @@ def test_a_lost_estimate_restarts_with_the_sensor_errors_it_had_before_the_refus
     for p in packets:
         if isinstance(p, GpsFix) and p.t == 90.0:
             before = float(road.state.x[ODO_SCALE])
-        road.apply(p)
+        out = road.apply(p)
         reason = road.state.gps.reason if road.state.gps is not None else ""
         if isinstance(p, GpsFix) and p.t > 90.0 and pulled is None and \
                 reason.startswith("down-weighted"):
@@ -862,6 +864,11 @@ def test_a_lost_estimate_restarts_with_the_sensor_errors_it_had_before_the_refus
             assert before is not None and pulled is not None
             assert abs(pulled - before) > 0.01  # the refused fixes did pull the scale
             assert road.state.x[ODO_SCALE] == before
+            # emitted at the fix, with no heading: the filter no longer trusts its own
+            assert len(out) == 1 and not out[0].initialized
+            assert (out[0].x_m, out[0].y_m) == pytest.approx(FRAME.to_local(p.lon_deg,
+                                                                            p.lat_deg))
+            assert math.isnan(out[0].heading_rad) and math.isinf(out[0].heading_sigma_rad)
             return
     raise AssertionError("the filter never re-acquired")
 

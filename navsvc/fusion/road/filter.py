@@ -291,7 +291,8 @@ class RoadFilter:
                 self.restore(before)  # never a state a later packet cannot recover from
                 self.state.gps = GpsUsage(False, 0.0, "refused: the update was not finite")
             self.state.last_output_t = packet.t
-            return [self._estimate()]
+            # a fix that made the filter re-acquire: the heading is no longer known
+            return [self._estimate() if s.initialized else self._unstarted_estimate(packet)]
         if isinstance(packet, GpsVelocityPacket):
             self._fuse_gps_velocity(packet)
         else:
