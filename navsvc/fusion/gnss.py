@@ -52,11 +52,11 @@ def gps_sigma_m(fix: GpsFix, uere_m: float, default_sigma_m: float) -> float:
 
 def unstarted_estimate(t: float, east_m: float, north_m: float, cov_m2: np.ndarray,
                        speed_mps: float | None, gps: GpsUsage | None) -> FusedEstimate:
-    """Before start-up, while the heading is still unknown: where the fixes put the car,
-    with their covariance (all of it GPS error), a speed when one is measured, and no
-    heading (NaN: the wire sends null). Without it a car standing when the fixes came back
-    after a gap had no position for the rest of the drive (Monaco 516 of the tune split:
-    250 s), and a client had none until the car moved."""
+    """Before start-up (and at the fix that makes the filter re-acquire), while the heading
+    is unknown: where the fixes put the car, with their covariance (all of it GPS error), a
+    speed when one is measured, and no heading (NaN: the wire sends null). Without it a car
+    standing when the fixes came back after a gap had no position for the rest of the drive
+    (Monaco 516 of the tune split: 250 s), and a client had none until the car moved."""
     return FusedEstimate(t=t, x_m=east_m, y_m=north_m, heading_rad=math.nan,
                          speed_mps=math.nan if speed_mps is None else speed_mps,
                          yaw_rate_rps=math.nan, position_cov_m2=cov_m2,
