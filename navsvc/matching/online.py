@@ -142,9 +142,8 @@ class OnlineMatcher:
         """Before the filter starts (its heading unknown, or re-acquiring): the nearest road
         within the start-up radius, by distance alone, is reported but not taken as the road
         (start-up weighs the heading too, once there is one)."""
-        lo, hi = self.config.startup_radius_m
-        radius = min(max(3.0 * e.position_sigma_m + 15.0, lo), hi)
-        near = self.graph.edges_near(e.x_m, e.y_m, radius, limit=1)
+        near = self.graph.edges_near(e.x_m, e.y_m, self._startup_radius_m(e.position_sigma_m),
+                                     limit=1)
         if not near:
             return MatchedPosition(e, MatchState.INITIALIZING, e.x_m, e.y_m)
         proj = near[0]
@@ -180,11 +179,9 @@ class OnlineMatcher:
 
     def _start(self, e: FusedEstimate) -> MatchedPosition:
         """Start-up and re-initialisation: the best nearby edge by distance and heading."""
-        c, s = self.config, self.state
-        lo, hi = c.startup_radius_m
-        radius = min(max(3.0 * e.tracking_sigma_m + 15.0, lo), hi)
+        s = self.state
         best: tuple[float, EdgeProjection] | None = None
-        for proj in self.graph.edges_near(e.x_m, e.y_m, radius):
+        for proj in self.graph.edges_near(e.x_m, e.y_m, self._startup_radius_m(e.tracking_sigma_m)):
             score = self._likelihood(e, proj, self._heading_error(e, proj))
             if best is None or score > best[0]:
                 best = (score, proj)
@@ -194,6 +191,11 @@ class OnlineMatcher:
         s.edge, s.region, s.far_since_t, s.against_since_t = best[1].edge, None, None, None
         s.off_road = False
         return self._on_road(e, best[1])
+
+    def _startup_radius_m(self, sigma_m: float) -> float:
+        """How far start-up looks for a road: 3 sigma + 15 m, within ``startup_radius_m``."""
+        lo, hi = self.config.startup_radius_m
+        return min(max(3.0 * sigma_m + 15.0, lo), hi)
 
     def _check_lost(self, e: FusedEstimate, proj: EdgeProjection) -> MatchedPosition | None:
         """Off road (far from the road) or lost (moving against it) for long enough."""
