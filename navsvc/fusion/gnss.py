@@ -72,6 +72,21 @@ class RoadDistance(Protocol):
                  max_bearing_diff_rad: float) -> float: ...
 
 
+def nearest_road_var_m2(road_distance: RoadDistance | None, x_m: float, y_m: float,
+                        radius_m: float) -> float:
+    """The square of the distance from a position to the nearest road, whatever its
+    bearing (at most ``radius_m``; zero without a map): the car is on a road, so an
+    estimate that far from every road is at least that far off. Before start-up the fixes
+    alone give the position, with a sigma that leaves out their slowly changing error
+    (the offset of a standstill's fixes does not average away); as a floor under that
+    variance, on the tune split (600 drives, gyro + odometer, ekf; estimates unchanged)
+    the 2.45-sigma circle held 90.8 % of the errors in the first 10 s against 81.4 %,
+    90.5 % of the next 20 s against 87.0 % (all epochs 94.1 against 93.3 %)."""
+    if road_distance is None:
+        return 0.0
+    return road_distance(x_m, y_m, 0.0, radius_m, math.pi / 2.0) ** 2
+
+
 @dataclass(frozen=True)
 class MapSeenError:
     """The fixes' error as the map sees it. Their slowly changing error moves the estimate

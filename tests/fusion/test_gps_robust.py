@@ -404,6 +404,22 @@ def test_before_start_up_a_leap_at_the_standstill_is_where_the_start_would_put_i
     assert all(2.45 * math.sqrt(e.position_cov_m2[0, 0]) >= 50.0 - e.x_m for e in leapt)
 
 
+def test_before_start_up_the_sigma_reaches_the_nearest_road() -> None:
+    """Fixes of a sigma of 1 m that agree with each other, 12 m east of the road the car
+    stands on: no fix sees that error, the map does (the car is on a road, so the
+    estimate is at least as far off as the nearest one): with a map the 2.45-sigma
+    circle holds the error, without one it does not."""
+    def standing(road_distance: RoadDistance | None) -> list[FusedEstimate]:
+        road = RoadFilter(FusionConfig(), FRAME, road_distance)
+        return [e for p in _drive(STILL_S, [(0.0, STILL_S, 12.0)]) for e in road.apply(p)
+                if _unstarted(e)]
+
+    blind, seen = standing(None), standing(_north_road_distance)
+    assert len(seen) == len(blind) == int(STILL_S)  # a fix a second
+    assert all(math.hypot(e.x_m, e.y_m) > 2.45 * e.position_sigma_m for e in blind)
+    assert all(10.0 < math.hypot(e.x_m, e.y_m) <= 2.45 * e.position_sigma_m for e in seen)
+
+
 def test_a_leap_at_the_standstill_that_comes_back_leaves_nothing_behind() -> None:
     """A multipath burst within the standstill: the filter starts on the fixes, with no
     jump remembered."""

@@ -257,3 +257,23 @@ def test_an_ins_far_from_fixes_that_agree_aligns_again_from_them() -> None:
     assert off[29.0][0] < 3.0
     assert any(reason.startswith("lost") for _, reason in (off[t] for t in (31.0, 32.0, 33.0)))
     assert all(off[t][0] < 3.0 for t in range(36, 45)), off
+
+
+def test_before_alignment_the_sigma_reaches_the_nearest_road() -> None:
+    """A fix of 1 m, 12 m east of the only road, before the INS has a heading: the car is
+    on a road, so with the map the fix's sigma is at least that distance
+    (:func:`navsvc.fusion.gnss.nearest_road_var_m2`), without one it is its own."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+
+    def road_12_m_west(x_m: float, y_m: float, heading_rad: float, radius_m: float,
+                       max_bearing_diff_rad: float) -> float:
+        return min(abs(x_m + 12.0), radius_m)
+
+    lon, lat = frame.to_wgs84(0.0, 0.0)
+    fix = GpsFix(0.0, lat_deg=lat, lon_deg=lon, accuracy_m=1.0)
+    config = FusionConfig(sensors=SensorConfig.STRAPDOWN)
+    (blind,) = StrapdownFilter(config, frame).apply(fix)
+    (seen,) = StrapdownFilter(config, frame, road_distance=road_12_m_west).apply(fix)
+    assert not seen.initialized and math.isnan(seen.heading_rad)
+    assert blind.position_sigma_m == pytest.approx(1.0)
+    assert seen.position_sigma_m == pytest.approx(12.0)

@@ -46,6 +46,7 @@ from navsvc.fusion.gnss import (
     fit_track,
     gps_problem,
     gps_sigma_m,
+    nearest_road_var_m2,
     unstarted_estimate,
 )
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
@@ -498,12 +499,14 @@ class StrapdownFilter:
     def _unstarted_estimate(self, fix: GpsFix) -> FusedEstimate:
         """The fix as the position while the heading is unknown
         (:func:`navsvc.fusion.gnss.unstarted_estimate`), with the error the map saw in the
-        fixes before a restart, if any."""
+        fixes before a restart, if any, and at least its distance from the nearest road
+        (:func:`navsvc.fusion.gnss.nearest_road_var_m2`)."""
         s = self.state
         assert self.frame is not None
         east, north = self.frame.to_local(fix.lon_deg, fix.lat_deg)
         speed = s.odo_speed * s.odo_scale if s.odo_speed is not None else fix.speed_mps
-        variance = self._sigma_m(fix) ** 2 + s.gps_unseen_var_m2
+        variance = max(self._sigma_m(fix) ** 2 + s.gps_unseen_var_m2, nearest_road_var_m2(
+            self.road_distance, east, north, self.config.road_fit_radius_m))
         return unstarted_estimate(fix.t, east, north, variance * np.eye(2), speed, s.gps)
 
     def _estimate(self) -> FusedEstimate:

@@ -35,6 +35,7 @@ from navsvc.fusion.gnss import (
     fit_track,
     gps_problem,
     gps_sigma_m,
+    nearest_road_var_m2,
     turn_between_paths,
     unstarted_estimate,
 )
@@ -591,7 +592,8 @@ class RoadFilter:
         odometer says the car stands, the mean of its fixes since it stopped (or since their
         leap), and across a leap the start would start across, where that start would put it
         and with its spread (a leap of 60 m at a standstill, gh-issue-70 148 of the tune
-        split, had stood as the position for 14 s)."""
+        split, had stood as the position for 14 s); never surer than its distance from the
+        nearest road (:func:`navsvc.fusion.gnss.nearest_road_var_m2`)."""
         s = self.state
         east, north = self._local(fix)
         sigma = self._gps_sigma_learnt(fix)
@@ -605,11 +607,14 @@ class RoadFilter:
                 # of the errors before start-up on the tune split's UrbanNav replays (60
                 # drives; 70 % with it; the synthetic drives 98 -> 99 %)
                 variance = max(variance, scatter_m2 / (2.0 * (n - 1)))
-        cov = variance * np.eye(2)
+        spread = np.zeros((2, 2))
         if leap is not None:
             onset, along = self.config.leap_onset_share, np.array(leap[1:])
             east, north = east - onset * along[0], north - onset * along[1]
-            cov += onset * (1.0 - onset) * np.outer(along, along)
+            spread = onset * (1.0 - onset) * np.outer(along, along)
+        variance = max(variance, nearest_road_var_m2(self.road_distance, east, north,
+                                                     self.config.road_fit_radius_m))
+        cov = variance * np.eye(2) + spread
         measured = self._measured_speed(fix)
         return unstarted_estimate(fix.t, east, north, cov,
                                   None if measured is None else measured[0], s.gps)
