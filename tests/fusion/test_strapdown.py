@@ -277,3 +277,34 @@ def test_before_alignment_the_sigma_reaches_the_nearest_road() -> None:
     assert not seen.initialized and math.isnan(seen.heading_rad)
     assert blind.position_sigma_m == pytest.approx(1.0)
     assert seen.position_sigma_m == pytest.approx(12.0)
+
+
+def test_without_fixes_the_sigma_along_the_drive_holds_the_wheels_scale() -> None:
+    """Wheels never calibrated (a receiver that sends no speed) may be several percent
+    off, an error the INS takes as motion: after 60 s at 10 m/s without fixes the reported
+    sigma along the drive (north) holds ``initial_odo_scale_sigma`` of the 600 m driven
+    (the INS's own: under a metre). Calibrated by the fixes' speed, the scale's sigma
+    shrinks, and so does that share."""
+    def sigma_along_at_end_of_gap(receiver_speed: bool) -> tuple[float, float]:
+        frame = LocalFrame.for_point(7.42, 43.73)
+        ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+        last: list[FusedEstimate] = []
+        for k in range(100 * 90):
+            t = k / 100.0
+            last = ins.apply(ImuSample(t, gyro_rps=(0.0, 0.0, 0.0),
+                                       accel_mps2=(0.0, 0.0, 9.81))) or last
+            if k % 10 == 0:
+                ins.apply(OdometerSample(t, speed_mps=10.0))
+            if k % 100 == 0 and t < 30.0:
+                lon, lat = frame.to_wgs84(0.0, 10.0 * t)
+                speed, course = (10.0, 0.0) if receiver_speed else (None, None)
+                ins.apply(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=1.0,
+                                 speed_mps=speed, heading_rad=course))
+        (e,) = last
+        driven_m = 10.0 * (e.t - 29.0)  # since the last fix (the wheels' last speed: e.t)
+        return math.sqrt(e.position_cov_m2[1, 1]), driven_m
+
+    along, driven_m = sigma_along_at_end_of_gap(receiver_speed=False)
+    assert along >= 0.98 * FusionConfig().initial_odo_scale_sigma * driven_m > 25.0
+    calibrated_along, _ = sigma_along_at_end_of_gap(receiver_speed=True)
+    assert calibrated_along < 0.5 * along

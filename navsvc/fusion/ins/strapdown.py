@@ -67,6 +67,7 @@ from roadgraph import LocalFrame
 FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 NO_HEIGHT_SIGMA_M = 50.0
 ODO_SCALE_GAIN = 0.05
+ODO_RATIO_SIGMA = 0.03  # one GPS speed over the wheels' (at 5 m/s and more): its noise
 MIN_BASELINE_HEADING_SIGMA_RAD = math.radians(1.0)  # a road is never driven quite straight
 DOUBT_SIGMAS = 2.0  # a fix past the gate: the estimate may be off by half its innovation
 # as a sigma (the road filter: a third; the INS follows a run of such fixes sooner)
@@ -118,6 +119,8 @@ class StrapdownState:
     odo_window: odometer.Window | None = None
     odo_speed: float | None = None  # latest raw wheel speed
     odo_scale: float = 1.0
+    odo_scale_var: float | None = None  # its variance (None: the prior, not yet calibrated)
+    odo_since_fix_m: float = 0.0  # the wheels' distance since the last fix taken
     gps_bias_var_m2: float = 0.0  # the slowly changing part of the latest fix's variance
     last_fix_t: float | None = None
     gps_map_error: MapSeenError = MapSeenError()  # the fixes' distance from the roads
@@ -272,11 +275,13 @@ class StrapdownFilter:
         s.odo_speed = speed
         s.standing = speed < self.options.still_speed_mps  # the wheels say it best
         speed *= s.odo_scale
+        step_m = speed * (p.t - s.last_odo_t) if s.last_odo_t is not None and \
+            p.t > s.last_odo_t else 0.0
+        s.last_odo_t = p.t
         if s.ins is None:
-            if s.last_odo_t is not None and p.t > s.last_odo_t:
-                s.travelled_m += speed * (p.t - s.last_odo_t)
-            s.last_odo_t = p.t
+            s.travelled_m += step_m
             return
+        s.odo_since_fix_m += step_m
         sigma = np.full(3, cfg.odometer_sigma_mps)
         if speed < 0.05:
             s.ins.update(BodyVelocity(np.zeros(3), (0, 1, 2), sigma))
@@ -309,6 +314,15 @@ class StrapdownFilter:
         ratio = fix.speed_mps / s.odo_speed
         if 0.8 < ratio < 1.2:
             s.odo_scale += ODO_SCALE_GAIN * (ratio - s.odo_scale)
+            var = self._odo_scale_var()
+            r = ODO_RATIO_SIGMA ** 2
+            s.odo_scale_var = max(var * r / (var + r), ODO_SCALE_GAIN / (2.0 - ODO_SCALE_GAIN) * r)
+
+    def _odo_scale_var(self) -> float:
+        """The variance of the wheels' scale: the prior (``initial_odo_scale_sigma``) until
+        GPS speeds calibrate it, then that of their running average."""
+        var = self.state.odo_scale_var
+        return self.config.initial_odo_scale_sigma ** 2 if var is None else var
 
     def _sigma_m(self, fix: GpsFix) -> float:
         return gps_sigma_m(fix, self.config.gps_uere_m, self.config.gps_default_sigma_m)
@@ -347,6 +361,8 @@ class StrapdownFilter:
                              "error from the estimate; aligning again")
             return []
         used = s.ins.update(position)
+        if used:
+            s.odo_since_fix_m = 0.0
         self._gps_velocity(fix)
         s.gps = GpsUsage(True, 1.0, "accepted") if used else \
             GpsUsage(False, 0.0, "gated: innovation too large")
@@ -372,7 +388,7 @@ class StrapdownFilter:
         """Forget the INS; it aligns again from the next fixes (:meth:`_try_align`)."""
         s = self.state
         s.ins, s.lost_since_t, s.disagreement = None, None, None
-        s.baseline, s.travelled_m, s.turned_rad = (), 0.0, 0.0
+        s.baseline, s.travelled_m, s.turned_rad, s.odo_since_fix_m = (), 0.0, 0.0, 0.0
 
     def _note_disagreement(self, t: float, position: GnssPosition) -> float | None:
         """A fix past the gate (the INS's own, with its floor) is reported as a doubt of
@@ -523,9 +539,18 @@ class StrapdownFilter:
                                     DOUBT_SIGMAS)
         bias = s.gps_bias_var_m2 + s.gps_unseen_var_m2
         cov = np.array([[p[1, 1] + bias, p[1, 0]], [p[0, 1], p[0, 0] + bias]]) + doubt
+        # the INS takes the wheels' scale as known (a few percent off from tyre wear, more
+        # from a guess, uncalibrated without the receiver's speed): since the last fix taken
+        # the distance they drove, times the scale's sigma, is reported along the heading.
+        # Tune split, 120 drives: the 2.45-sigma circle held 78.7 -> 85.9 % of the errors in
+        # the planned outage, 73.0 -> 85.6 % in the other gaps, 89.9 -> 91.1 % of all the
+        # epochs; fused RMS mean log -1.8 % (the map feedback's gate reads the sigma)
+        yaw = dcm_to_euler(n.c_bn)[2]
+        along = np.array([math.sin(yaw), math.cos(yaw)])  # (east, north)
+        cov += self._odo_scale_var() * s.odo_since_fix_m ** 2 * np.outer(along, along)
         yaw_rate = 0.0 if rates is None else float(
             (n.c_bn @ (rates[0] - n.gyro_bias_rps))[2])
-        return FusedEstimate(t=n.t, x_m=x, y_m=y, heading_rad=dcm_to_euler(n.c_bn)[2],
+        return FusedEstimate(t=n.t, x_m=x, y_m=y, heading_rad=yaw,
                              speed_mps=float(math.hypot(n.v_ned[0], n.v_ned[1])),
                              yaw_rate_rps=yaw_rate, position_cov_m2=cov,
                              heading_sigma_rad=ins.heading_sigma_rad(), gps=self.state.gps,
