@@ -67,7 +67,7 @@ from roadgraph import LocalFrame
 FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 NO_HEIGHT_SIGMA_M = 50.0
 ODO_SCALE_GAIN = 0.05
-ODO_RATIO_SIGMA = 0.03  # one GPS speed over the wheels' (at 5 m/s and more): its noise
+ODO_RATIO_SIGMA = 0.03  # noise of one ratio of GPS speed to wheel speed (both >= 5 m/s)
 MIN_BASELINE_HEADING_SIGMA_RAD = math.radians(1.0)  # a road is never driven quite straight
 DOUBT_SIGMAS = 2.0  # a fix past the gate: the estimate may be off by half its innovation
 # as a sigma (the road filter: a third; the INS follows a run of such fixes sooner)
@@ -275,8 +275,9 @@ class StrapdownFilter:
         s.odo_speed = speed
         s.standing = speed < self.options.still_speed_mps  # the wheels say it best
         speed *= s.odo_scale
-        step_m = speed * (p.t - s.last_odo_t) if s.last_odo_t is not None and \
-            p.t > s.last_odo_t else 0.0
+        step_m = 0.0  # the distance driven since the wheels' speed before
+        if s.last_odo_t is not None and p.t > s.last_odo_t:
+            step_m = speed * (p.t - s.last_odo_t)
         s.last_odo_t = p.t
         if s.ins is None:
             s.travelled_m += step_m
