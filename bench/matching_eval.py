@@ -323,7 +323,8 @@ def main() -> None:
                                                       args.harsh)
         rows += found
         at, length = outage(args.duration)
-        drives = "harsh-urban drives, 60 s outage mid-drive" if args.harsh else \
+        drives = f"harsh-urban drives, {generalisation_eval.OUTAGE_LENGTH_S:.0f} s outage " \
+            "mid-drive" if args.harsh else \
             f"drives, {length:.0f} s outage at {at:.0f} s"
         print_table(f"{map_path.stem}: online matching, {len(seeds)} {args.seeds} {drives} x "
                     f"{args.duration:.0f} s, gyro + odometer (navsvc.sim.evaluate)",
