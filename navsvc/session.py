@@ -379,6 +379,8 @@ class VehicleSession:
             position = MatchedPosition(estimate=estimate, state=state, x_m=estimate.x_m,
                                        y_m=estimate.y_m)
         else:
+            if not estimate.initialized:
+                estimate = self.matcher.on_road(estimate)
             position = self.matcher.update(estimate)
             self._last_match_t = estimate.t
             if self.config.map_feedback:

@@ -37,9 +37,12 @@ Pure: no I/O; :meth:`OnlineMatcher.update` takes an estimate and returns a match
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from navsvc.errors import ConfigError
+from navsvc.matching.on_road import on_road_posterior
 from navsvc.types import EdgeRef, FusedEstimate, MatchedPosition, MatchState
 from roadgraph import EdgeKey, EdgeProjection, EdgeRecord, RoadGraph
 from roadgraph.geometry import wrap_angle_rad
@@ -116,6 +119,23 @@ class OnlineMatcher:
         c = self.config
         r = max(self._seed_radius_m, c.sigma_factor * position_sigma_m)
         return min(max(r, c.min_radius_m), c.max_radius_m)
+
+    def on_road(self, e: FusedEstimate) -> FusedEstimate:
+        """Before start-up: the estimate given that the car is on a road within 3 sigma of
+        it (:func:`navsvc.matching.on_road.on_road_posterior`), its covariance all GPS error
+        as before; unchanged when none is that near."""
+        var_m2 = e.position_sigma_m ** 2
+        if var_m2 <= 0.0:
+            return e
+        road_sigma_m = self.config.road_sigma_m
+        radius_m = 3.0 * math.sqrt(var_m2 + road_sigma_m ** 2)
+        found = on_road_posterior(e.x_m, e.y_m, var_m2,
+                                  self.graph.edges_near(e.x_m, e.y_m, radius_m), road_sigma_m)
+        if found is None:
+            return e
+        x_m, y_m, cov_m2 = found
+        return replace(e, x_m=x_m, y_m=y_m, position_cov_m2=cov_m2,
+                       gps_bias_var_m2=float(np.trace(cov_m2)) / 2.0)
 
     # --- one epoch -----------------------------------------------------------------------
     def update(self, e: FusedEstimate) -> MatchedPosition:
