@@ -122,8 +122,9 @@ class OnlineMatcher:
 
     def on_road(self, e: FusedEstimate) -> FusedEstimate:
         """Before start-up: the estimate given that the car is on a road within 3 sigma of
-        it (:func:`navsvc.matching.on_road.on_road_posterior`), its covariance all GPS error
-        as before; unchanged when none is that near."""
+        it (:func:`navsvc.matching.on_road.on_road_posterior`, with the estimate's mean
+        variance in each axis: a leap's spread along one is taken as round), its covariance
+        all GPS error as before; unchanged when none is that near."""
         var_m2 = e.position_sigma_m ** 2
         if var_m2 <= 0.0:
             return e
