@@ -124,12 +124,15 @@ class OnlineMatcher:
         """Before start-up: the estimate given that the car is on a road within 3 sigma of
         it (:func:`navsvc.matching.on_road.on_road_posterior`, with the estimate's mean
         variance in each axis: a leap's spread along one is taken as round), its covariance
-        all GPS error as before; unchanged when none is that near."""
+        all GPS error as before; unchanged when none is that near, or when 3 sigma reach
+        beyond the start-up radius (a fix that unsure would weigh every road of a town, one
+        by one, for a position the roads hardly sharpen; the tune split's reach at most
+        91 m)."""
         var_m2 = e.position_sigma_m ** 2
-        if var_m2 <= 0.0:
-            return e
         road_sigma_m = self.config.road_sigma_m
         radius_m = 3.0 * math.sqrt(var_m2 + road_sigma_m ** 2)
+        if var_m2 <= 0.0 or radius_m > self.config.startup_radius_m[1]:
+            return e
         found = on_road_posterior(e.x_m, e.y_m, var_m2,
                                   self.graph.edges_near(e.x_m, e.y_m, radius_m), road_sigma_m)
         if found is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import httpx
 import pytest
 
@@ -80,7 +82,9 @@ def test_position_before_and_after_the_first_fix(client: httpx.Client) -> None:
 def test_a_fix_of_a_car_standing_gives_a_position_before_the_heading_is_known(
         client: httpx.Client) -> None:
     """The first fix already gives a position (the contract: 404 only before it): the car
-    stands, so no heading is known yet (null), and the wheels say 0 m/s."""
+    stands, so no heading is known yet (null), and the wheels say 0 m/s. The position is
+    the fix's given that the car is on a road: within its 2.45-sigma circle of the fix,
+    and nearer the matched road than the fix is."""
     s = new_session(client)
     packets = [{"t": 0.0, "kind": "odometer", "speed_mps": 0.0},
                {**GPS, "t": 0.1, "hdop": 1.0}]
@@ -89,8 +93,18 @@ def test_a_fix_of_a_car_standing_gives_a_position_before_the_heading_is_known(
     p = client.get(f"/sessions/{s['id']}/position").json()
     assert p == out["positions"][0]
     assert p["state"] == "initializing" and p["heading_deg"] is None and p["speed_mps"] == 0.0
-    assert (p["fused_lat"], p["fused_lon"]) == pytest.approx((GPS["lat"], GPS["lon"]))
     assert p["position_sigma_m"] > 0.0 and p["gps"]["reason"].startswith("initialising")
+    fused, fix, road = ((p["fused_lat"], p["fused_lon"]), (GPS["lat"], GPS["lon"]),
+                        (p["lat"], p["lon"]))
+    assert _metres(fused, fix) <= 2.45 * p["position_sigma_m"]
+    assert _metres(fused, road) < _metres(fix, road)
+
+
+def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Distance between two (lat, lon) a few tens of metres apart."""
+    north = math.radians(a[0] - b[0]) * 6_371_000.0
+    east = math.radians(a[1] - b[1]) * 6_371_000.0 * math.cos(math.radians(a[0]))
+    return math.hypot(north, east)
 
 
 def test_body_that_is_not_an_array(client: httpx.Client) -> None:

@@ -10,7 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from navsvc.matching.on_road import on_road_posterior
+from navsvc.matching.online import OnlineMatcher
 from navsvc.session import VehicleSession
+from navsvc.types import FusedEstimate
 from roadgraph import RoadGraph
 from tests.roadgraph.test_graph import FRAME, cross_graph
 
@@ -91,6 +93,22 @@ def test_the_covariance_is_a_covariance(dx: float, dy: float, sigma_m: float) ->
     _, _, cov = _posterior(cross_graph(), dx, dy, sigma_m)
     assert cov[0, 1] == pytest.approx(cov[1, 0])
     assert np.all(np.linalg.eigvalsh(cov) > 0.0)
+
+
+@pytest.mark.parametrize(("sigma_m", "moved"), [(10.0, True), (60.0, False)])
+def test_the_matcher_places_an_unstarted_estimate_on_its_roads_within_reach(
+        sigma_m: float, moved: bool) -> None:
+    """An unstarted estimate 8 m east of the cross's north arm is drawn toward it; one so
+    unsure that 3 sigma reach past the start-up radius is left as it is."""
+    e = FusedEstimate(t=0.0, x_m=X0 + 8.0, y_m=Y0 + 50.0, heading_rad=math.nan,
+                      speed_mps=0.0, yaw_rate_rps=math.nan,
+                      position_cov_m2=np.eye(2) * sigma_m ** 2, heading_sigma_rad=math.inf,
+                      initialized=False, gps_bias_var_m2=sigma_m ** 2)
+    placed = OnlineMatcher(cross_graph()).on_road(e)
+    assert (abs(placed.x_m - X0) < 8.0 * 0.5) == moved
+    assert placed.tracking_sigma_m == pytest.approx(0.0, abs=1e-6)
+    if not moved:
+        assert placed is e
 
 
 def _standstill_records(east_m: float, seconds: int) -> list[dict[str, float | str]]:
