@@ -2,6 +2,8 @@
 
 The vehicle is on one directed edge of the intersection graph at a time:
 
+* **before start-up** (the filter has no heading yet): the estimate is placed on the roads
+  near it (:meth:`OnlineMatcher.on_road`) and reported on the nearest, by distance alone.
 * **start-up / re-initialisation**: candidate edges from the spatial index within a radius set
   by the position uncertainty; the best by distance and heading.
 * **between intersections**: project onto the current edge and follow it.
