@@ -13,9 +13,9 @@ Seeds come in three disjoint sets: TUNE for trying changes, VALIDATE for checkin
 change chosen on TUNE holds on drives it was not chosen on (a failure rate that TUNE's drives
 under-sample shows there: Stockholm's drives past a target were 1 in 120 of TUNE and 5 in 100
 of fresh seeds), REPORT for the figures quoted (use it once per change, never to choose
-parameters). Each drive replays the same packets
-through ``VehicleSession`` (the code of ``navsvc run``) for each configuration: gyro_odometer
-with the EKF alone by default, every sensor configuration x GPS mode with ``--all-configs``.
+parameters). Each drive replays the same packets through ``VehicleSession`` (the code of
+``navsvc run``) for each configuration: gyro_odometer with the EKF alone by default, every
+sensor configuration x GPS mode with ``--all-configs``.
 Scores and targets: ``navsvc.sim.scorecard``. Maps are imported with ``roadgraph import`` into
 bench/.cache when missing.
 
