@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from navsvc.errors import ConfigError
 from navsvc.fusion import FusionConfig, SensorConfig
+from navsvc.fusion.gnss import RoadDistance
 from navsvc.fusion.ins import dcm_to_euler
 from navsvc.fusion.ins.strapdown import StrapdownFilter
 from navsvc.fusion.road.measurements import RoadConstraint
@@ -204,13 +205,15 @@ def test_random_streams_never_break_the_strapdown_engine(stream: list[dict]) -> 
             assert np.allclose(p, p.T) and np.linalg.eigvalsh(p).min() > 0.0
 
 
-def _drive_north(seconds: float, fix_east_m: Callable[[float], float]
+def _drive_north(seconds: float, fix_east_m: Callable[[float], float],
+                 road_distance: RoadDistance | None = None
                  ) -> Iterator[tuple[StrapdownFilter, float, float, list[FusedEstimate]]]:
     """A car driving north at 10 m/s on a level road (IMU 100 Hz, wheel speed 10 Hz), a fix
     a second to 1 m with its course, ``fix_east_m(t)`` east of the truth: after each fix,
     the INS, the fix's time and east offset, and the estimates it gave."""
     frame = LocalFrame.for_point(7.42, 43.73)
-    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame,
+                          road_distance=road_distance)
     for k in range(int(100 * seconds)):
         t = k / 100.0
         ins.apply(ImuSample(t, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=(0.0, 0.0, 9.81)))
@@ -225,11 +228,10 @@ def _drive_north(seconds: float, fix_east_m: Callable[[float], float]
 
 
 def test_a_fix_past_the_gate_widens_the_reported_sigma_not_the_ins() -> None:
-    """At 30 s the fixes leap 50 m east for 10 s. The INS refuses the leap (then takes it
-    inflated: it may be the one that is wrong); the estimate it reports may be off by the
-    leap, so its sigma holds half of it along the leap from the first refused fix, while
-    the INS's own covariance stays that of a filter with good fixes, and the doubt fades
-    afterwards."""
+    """At 30 s the fixes leap 50 m east for 10 s. The INS refuses the leap (a jump); the
+    estimate it reports may be off by the leap, so its sigma holds half of it along the leap
+    from the first refused fix, while the INS's own covariance stays that of a filter with
+    good fixes, and the doubt fades afterwards."""
     reported: dict[float, tuple[float, float]] = {}
     for ins, t, _, out in _drive_north(120.0, lambda t: 50.0 if 30.0 <= t < 40.0 else 0.0):
         for e in out:
@@ -242,6 +244,43 @@ def test_a_fix_past_the_gate_widens_the_reported_sigma_not_the_ins() -> None:
     # the INS moved toward the last good fix)
     assert first_refused[0] >= 0.95 * 50.0 / 2.0 / math.sqrt(2.0)
     assert late[0] < 0.5 * first_refused[0]
+
+
+def test_a_run_of_fixes_that_leapt_from_the_track_is_refused_not_followed() -> None:
+    """At 30 s the fixes leap 50 m east for 40 s (a non-line-of-sight run) and come back.
+    The INS kept up with them for 30 s: dead reckoning does not leap, so the run is refused
+    whole and the estimate stays on the truth. Its soft gate had taken them inflated after
+    three refusals, and the INS drifted toward the run and back (Andorra 2 of the tune
+    split: 70 m for 56 s, 39 m rms; now 6.6 m)."""
+    off: dict[float, tuple[float, str]] = {}
+    for ins, t, _, out in _drive_north(90.0, lambda t: 50.0 if 30.0 <= t < 70.0 else 0.0):
+        assert ins.state.gps is not None and out
+        off[t] = (math.hypot(out[-1].x_m, out[-1].y_m - 10.0 * t), ins.state.gps.reason)
+    assert all(off[t][1].startswith("refused: jumped") for t in range(30, 70)), off
+    assert max(off[t][0] for t in range(25, 90)) < 3.0, off
+    assert all(off[t][1] == "accepted" for t in range(71, 90)), off
+
+
+def test_a_refused_jump_onto_the_road_is_followed() -> None:
+    """A start inside a non-line-of-sight run: the fixes lie 40 m east of the truth, off the
+    road (the line east = 0), for the first 40 s, and the INS aligned and settled there.
+    When the true fixes return they are the "jump". Tested against the map (the road
+    filter's two tracks: the estimate's 40 m from any road, the jumped one on it), the jump
+    is followed within a few seconds; without a map it is refused."""
+    def road(east: float, north: float, heading: float, radius: float,
+             max_bearing: float) -> float:
+        return min(abs(east), radius)
+
+    for road_distance, back_by_s in ((road, 46), (None, None)):
+        off: dict[float, float] = {}
+        for _, t, _, out in _drive_north(60.0, lambda t: 40.0 if t < 40.0 else 0.0,
+                                         road_distance):
+            if out and t >= 40.0:
+                off[t] = math.hypot(out[-1].x_m, out[-1].y_m - 10.0 * t)
+        if back_by_s is None:
+            assert min(off.values()) > 30.0, off
+        else:
+            assert all(off[t] < 3.0 for t in range(back_by_s, 60)), off
 
 
 def test_an_ins_far_from_fixes_that_agree_aligns_again_from_them() -> None:

@@ -163,6 +163,16 @@ class InsFilter:
         self._correct(dx)
         return True
 
+    def move(self, north_east_m: Array) -> None:
+        """Move the solution's position by (north, east) m: following fixes that leapt away
+        (which the update refused), not a measurement; the covariance stays."""
+        dx = np.zeros(N_ERR)
+        dx[0:2] = -north_east_m
+        if self.integration == Integration.FEEDFORWARD:
+            self.dx = self.dx + dx
+        else:
+            self.state = corrected(self.state, dx)
+
     def soft_gate_nis(self, H: Array, R: Array, y: Array) -> float:
         """The NIS a soft-gated measurement's innovation ``y`` is gated by: its noise with
         the gate's floor for the model error its own sigma leaves out (``GATE_FLOOR_M``)."""
