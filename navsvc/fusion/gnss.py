@@ -8,17 +8,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from navsvc.types import FusedEstimate, GpsFix, GpsFixType, GpsUsage
 from roadgraph.geometry import bearing_rad
 
+if TYPE_CHECKING:
+    from navsvc.fusion.config import FusionConfig
+
 # A fix type alone says little: only the corrected solutions are trusted by type (a plain 3D
 # fix in a street canyon is off by tens of metres as often as not).
 _FIX_SIGMA_M = {GpsFixType.RTK: 0.05, GpsFixType.DGPS: 1.0}
 MAX_PLAUSIBLE_SPEED_MPS = 70.0  # faster fixes (or wheels) are an outlier, not a car
+CRAWL_MPS = 3.0  # slower than this, or turning faster than CORNERING_RPS, a car's heading
+CORNERING_RPS = 0.1  # need not lie along any road (pulling up at a kerb, half-way round a corner)
 
 
 def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:
@@ -85,6 +90,49 @@ def nearest_road_var_m2(road_distance: RoadDistance | None, x_m: float, y_m: flo
     if road_distance is None:
         return 0.0
     return road_distance(x_m, y_m, 0.0, radius_m, math.pi / 2.0) ** 2
+
+
+@dataclass(frozen=True)
+class JumpMapTest:
+    """A refused jump tested against the map: two tracks, the estimate's and the estimate
+    moved by the jumped fixes' mean innovation, each fitted to the roads along the heading
+    (any road while the car crawls or corners). A start inside a non-line-of-sight run
+    settles on fixes off the roads; when the true fixes return, they are the "jump"."""
+
+    fixes: int = 0
+    sum_east_m: float = 0.0  # of the jumped fixes' innovations
+    sum_north_m: float = 0.0
+    track_sq_m2: float = 0.0  # sums of the squared road distances of the two tracks
+    jump_sq_m2: float = 0.0
+
+    def updated(self, innovation_en_m: tuple[float, float], x_m: float, y_m: float,
+                heading_rad: float, speed_mps: float, turn_rate_rps: float,
+                road_distance: RoadDistance, config: FusionConfig) -> JumpMapTest:
+        """With one more jumped fix, its innovation (east, north), the estimate at
+        ``x_m``, ``y_m`` moving at that heading, speed and turn rate."""
+        along_a_road = speed_mps >= CRAWL_MPS and abs(turn_rate_rps) <= CORNERING_RPS
+        args = (heading_rad, config.road_fit_radius_m,
+                config.road_fit_max_bearing_rad if along_a_road else math.pi)
+        n = self.fixes + 1
+        sum_e, sum_n = self.sum_east_m + innovation_en_m[0], self.sum_north_m + innovation_en_m[1]
+        return JumpMapTest(n, sum_e, sum_n,
+                           self.track_sq_m2 + road_distance(x_m, y_m, *args) ** 2,
+                           self.jump_sq_m2 + road_distance(x_m + sum_e / n, y_m + sum_n / n,
+                                                           *args) ** 2)
+
+    def mean_innovation_en_m(self) -> tuple[float, float]:
+        return self.sum_east_m / self.fixes, self.sum_north_m / self.fixes
+
+    def prefers_jump(self, age_s: float, config: FusionConfig) -> bool:
+        """After ``jump_map_after_s`` (3 fixes at least): the estimate's track lies
+        ``jump_map_track_off_m`` (rms) from the roads and ``jump_map_ratio`` times farther
+        than the jumped one."""
+        if self.fixes < 3 or age_s < config.jump_map_after_s:
+            return False
+        track_rms = math.sqrt(self.track_sq_m2 / self.fixes)
+        jump_rms = math.sqrt(self.jump_sq_m2 / self.fixes)
+        return track_rms >= config.jump_map_track_off_m and \
+            track_rms >= config.jump_map_ratio * jump_rms
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ import pytest
 
 import navsvc.fusion.road.filter as filter_module
 from navsvc.fusion import FusionConfig, GpsMode, SensorConfig
-from navsvc.fusion.gnss import RoadDistance
+from navsvc.fusion.gnss import JumpMapTest, RoadDistance
 from navsvc.fusion.road.filter import RoadFilter
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.fusion.road.motion import (
@@ -1149,7 +1149,7 @@ def test_a_car_half_way_round_a_corner_is_on_the_roads_for_the_jump_test() -> No
     innovation = np.array([-40.0, 0.0])
     for corner_rate_rps, followed in ((0.3, False), (0.0, True)):
         s.x[HEADING_RATE] = corner_rate_rps
-        s.jump_since_t, s.jump_paused_s, s.jump_fit = 0.0, 0.0, (0, 0.0, 0.0, 0.0, 0.0)
+        s.jump_since_t, s.jump_paused_s, s.jump_test = 0.0, 0.0, JumpMapTest()
         verdicts = [road._map_prefers_jump(t, innovation) for t in (4.0, 5.0, 6.0)]
         assert verdicts == [False, False, followed], (corner_rate_rps, verdicts)
 

@@ -41,6 +41,7 @@ from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import (
     MAX_PLAUSIBLE_SPEED_MPS,
+    JumpMapTest,
     MapSeenError,
     RoadDistance,
     baseline_heading,
@@ -62,7 +63,6 @@ from navsvc.fusion.ins.measurements import (
 )
 from navsvc.fusion.ins.mechanisation import MAX_ACCEL_MPS2, MAX_RATE_RPS, Mechanisation, NavState
 from navsvc.fusion.ins.total_state import ins_filter
-from navsvc.fusion.road.filter import CORNERING_RPS, CRAWL_MPS
 from navsvc.fusion.road.measurements import RoadConstraint
 from navsvc.types import FusedEstimate, GpsFix, GpsUsage, ImuSample, OdometerSample, Packet
 from roadgraph import LocalFrame
@@ -136,9 +136,7 @@ class StrapdownState:
     # innovation of the latest fix taken within the gate
     jump: tuple[float, float, float] | None = None  # (t, north, east) of the first fix of a
     # refused leap away from the track (:meth:`StrapdownFilter._refused_as_jump`)
-    jump_fit: tuple[int, float, float, float, float] = (0, 0.0, 0.0, 0.0, 0.0)  # its fixes,
-    # the sum of their innovations (north, east), and the sums of squared road distances of
-    # the estimate and of the estimate moved by their mean (:meth:`_map_prefers_jump`)
+    jump_test: JumpMapTest = JumpMapTest()  # its fixes against the map
     # alignment without a GPS course: the fixes since the baseline began (t, east, north,
     # odometer distance), and the distance driven and the turn made since then
     baseline: tuple[tuple[float, float, float, float], ...] = ()
@@ -456,9 +454,9 @@ class StrapdownFilter:
                     moved_m <= max(cfg.jump_spread_m, 4.0 * sigma_m) + cfg.jump_drift_mps * age_s:
                 if not self._map_prefers_jump(age_s, innovation):
                     return True
-                n, sum_n, sum_e = s.jump_fit[:3]
+                east, north = s.jump_test.mean_innovation_en_m()
                 assert s.ins is not None
-                s.ins.move(np.array([sum_n, sum_e]) / n)
+                s.ins.move(np.array([north, east]))
                 s.disagreement = s.track_innovation = None
             s.jump = None
             return False
@@ -470,38 +468,23 @@ class StrapdownFilter:
         if leap_m <= max(cfg.jump_spread_m, 4.0 * sigma_m):
             return False
         s.jump = (t, float(innovation[0]), float(innovation[1]))
-        s.jump_fit = (0, 0.0, 0.0, 0.0, 0.0)
+        s.jump_test = JumpMapTest()
         return True
 
     def _map_prefers_jump(self, age_s: float, innovation: Array) -> bool:
-        """The road filter's test of a refused jump against the map (its
-        ``_map_prefers_jump``): two tracks, the estimate's and the estimate moved by the
-        refused fixes' mean innovation; the jump is followed after ``jump_map_after_s`` when
-        the estimate's lies ``jump_map_track_off_m`` (rms) from any road along its heading
-        and ``jump_map_ratio`` times farther than the jumped one (a start on fixes off the
-        roads: the true fixes, when they return, are the jump)."""
-        s, cfg = self.state, self.config
+        """The refused jump against the map, as the road filter tests it
+        (:class:`JumpMapTest`)."""
+        s = self.state
         if self.road_distance is None or self.frame is None or s.ins is None:
             return False
-        n_out = s.ins.output()
-        east, north = self.frame.to_local(math.degrees(n_out.lon_rad),
-                                          math.degrees(n_out.lat_rad))
-        yaw = dcm_to_euler(n_out.c_bn)[2]
-        rate = 0.0 if s.rates is None else abs(float((n_out.c_bn @ s.rates[0])[2]))
-        along_a_road = math.hypot(n_out.v_ned[0], n_out.v_ned[1]) >= CRAWL_MPS and \
-            rate <= CORNERING_RPS
-        args = (yaw, cfg.road_fit_radius_m, cfg.road_fit_max_bearing_rad if along_a_road
-                else math.pi)
-        n, sum_n, sum_e, track_sq, jump_sq = s.jump_fit
-        n, sum_n, sum_e = n + 1, sum_n + float(innovation[0]), sum_e + float(innovation[1])
-        track_sq += self.road_distance(east, north, *args) ** 2
-        jump_sq += self.road_distance(east + sum_e / n, north + sum_n / n, *args) ** 2
-        s.jump_fit = (n, sum_n, sum_e, track_sq, jump_sq)
-        if n < 3 or age_s < cfg.jump_map_after_s:
-            return False
-        track_rms, jump_rms = math.sqrt(track_sq / n), math.sqrt(jump_sq / n)
-        return track_rms >= cfg.jump_map_track_off_m and \
-            track_rms >= cfg.jump_map_ratio * jump_rms
+        n = s.ins.output()
+        east, north = self.frame.to_local(math.degrees(n.lon_rad), math.degrees(n.lat_rad))
+        turn_rate = 0.0 if s.rates is None else float((n.c_bn @ s.rates[0])[2])
+        s.jump_test = s.jump_test.updated(
+            (float(innovation[1]), float(innovation[0])), east, north,
+            dcm_to_euler(n.c_bn)[2], math.hypot(n.v_ned[0], n.v_ned[1]), turn_rate,
+            self.road_distance, self.config)
+        return s.jump_test.prefers_jump(age_s, self.config)
 
     def _note_disagreement(self, t: float, innovation: Array, past_gate: bool
                            ) -> float | None:

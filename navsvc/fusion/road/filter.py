@@ -26,6 +26,7 @@ from navsvc.fusion._jit import Array
 from navsvc.fusion.config import FusionConfig
 from navsvc.fusion.gnss import (
     MAX_PLAUSIBLE_SPEED_MPS,
+    JumpMapTest,
     MapSeenError,
     PathTurn,
     RoadDistance,
@@ -90,8 +91,6 @@ from roadgraph.geometry import LocalFrame, bearing_rad
 MAX_PLAUSIBLE_ACCEL_MPS2 = 6.0  # a car's horizontal acceleration (braking hard: 8)
 OFF_ROAD_ESTIMATE_M = 5.0  # an estimate this close to a road is taken to be on it
 OFF_ROAD_SETTLED_S = 5.0  # ... and one off the roads this long has settled there
-CRAWL_MPS = 3.0  # slower than this, or turning faster than CORNERING_RPS, a car's heading
-CORNERING_RPS = 0.1  # need not lie along any road (pulling up at a kerb, half-way round a corner)
 # a fix past the gate reports the estimate off by its innovation over this many sigmas
 # (_disagreement_cov_m2): with dead reckoning (ekf), which refuses such fixes and is mostly
 # right to; in the rules mode, which follows them slowly (and refuses them beyond 50 m); in
@@ -138,9 +137,7 @@ class RoadState:
     track_innovation: tuple[float, float, float] | None = None  # the latest fix taken, if
     # in full (within the Huber NIS): (t, east, north of its innovation left after the update)
     jump_offset_m: tuple[float, float] = (0.0, 0.0)  # ... the first one's innovation
-    jump_fit: tuple[int, float, float, float, float] = (0, 0.0, 0.0, 0.0, 0.0)  # ... its
-    # fixes, sum of their innovations (east, north), sums of squared distances to the roads
-    # of the estimate's track and of the jumped one
+    jump_test: JumpMapTest = JumpMapTest()  # ... its fixes against the map
     gated_offset_m: tuple[float, float] | None = None  # where the refused run's first fix lay
     calibration_before_gated: tuple[tuple[float, float], ...] = ()  # ... and the sensor
     # errors then: (value, variance) of each of CALIBRATED
@@ -1211,7 +1208,7 @@ class RoadFilter:
         they are the "jump". Followed once, after ``jump_map_after_s``, when the estimate's
         track lies ``jump_map_track_off_m`` (rms) from any road along its heading and
         ``jump_map_ratio`` times farther than the jumped one. Any road at all counts while
-        the car crawls or corners (``CRAWL_MPS``, ``CORNERING_RPS``): stopped mid-turn or at a
+        the car crawls or corners (:class:`JumpMapTest`): stopped mid-turn or at a
         kerb, or half-way round a corner, its heading lies along no road; fitted along it, a
         track on its road mid-corner was "off the roads" and a non-line-of-sight run 75 m
         off was followed (Monaco 536 of the tune split: 0.85 -> 0.28x raw GPS, matched
@@ -1223,20 +1220,11 @@ class RoadFilter:
         s, cfg = self.state, self.config
         if self.road_distance is None or s.jump_since_t is None:
             return False
-        n, sum_e, sum_n, track_sq, jump_sq = s.jump_fit
-        n, sum_e, sum_n = n + 1, sum_e + float(innovation[0]), sum_n + float(innovation[1])
-        x, y, heading = float(s.x[X_M]), float(s.x[Y_M]), float(s.x[HEADING])
-        along_a_road = s.x[SPEED] >= CRAWL_MPS and abs(s.x[HEADING_RATE]) <= CORNERING_RPS
-        args = (heading, cfg.road_fit_radius_m,
-                cfg.road_fit_max_bearing_rad if along_a_road else math.pi)
-        track_sq += self.road_distance(x, y, *args) ** 2
-        jump_sq += self.road_distance(x + sum_e / n, y + sum_n / n, *args) ** 2
-        s.jump_fit = (n, sum_e, sum_n, track_sq, jump_sq)
-        if n < 3 or self._jump_age_s(t) < cfg.jump_map_after_s:
-            return False
-        track_rms, jump_rms = math.sqrt(track_sq / n), math.sqrt(jump_sq / n)
-        return track_rms >= cfg.jump_map_track_off_m and \
-            track_rms >= cfg.jump_map_ratio * jump_rms
+        s.jump_test = s.jump_test.updated(
+            (float(innovation[0]), float(innovation[1])), float(s.x[X_M]), float(s.x[Y_M]),
+            float(s.x[HEADING]), float(s.x[SPEED]), float(s.x[HEADING_RATE]),
+            self.road_distance, cfg)
+        return s.jump_test.prefers_jump(self._jump_age_s(t), cfg)
 
     def _road_distances_m(self, east: float, north: float) -> tuple[float, float] | None:
         """The estimate's and the fix's distance from any road (None without a map, at
@@ -1437,7 +1425,7 @@ class RoadFilter:
             return False  # the track drifting from precise fixes, not a leap of theirs
         s.jump_since_t, s.jump_paused_s = t, 0.0
         s.jump_offset_m = (float(innovation[0]), float(innovation[1]))
-        s.jump_fit = (0, 0.0, 0.0, 0.0, 0.0)
+        s.jump_test = JumpMapTest()
         return True
 
     def _with_the_jumped_fixes(self, t: float, innovation: Array) -> bool:
