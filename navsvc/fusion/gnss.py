@@ -26,6 +26,13 @@ CRAWL_MPS = 3.0  # slower than this, or turning faster than CORNERING_RPS, a car
 CORNERING_RPS = 0.1  # need not lie along any road (pulling up at a kerb, half-way round a corner)
 
 
+def leap_m(config: FusionConfig, sigma_m: float) -> float:
+    """How far the fixes must move in one step to be a leap, not their error wandering: a
+    non-line-of-sight run's size (``jump_spread_m``) or 4 sigma of a fix, whichever is more.
+    Dead reckoning does not leap; fixes do."""
+    return max(config.jump_spread_m, 4.0 * sigma_m)
+
+
 def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:
     """Why a fix is bad (thesis validity rules), or None when it is good."""
     if not fix.status_ok:

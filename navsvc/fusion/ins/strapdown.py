@@ -49,6 +49,7 @@ from navsvc.fusion.gnss import (
     fit_track,
     gps_problem,
     gps_sigma_m,
+    leap_m,
     nearest_road_var_m2,
     unstarted_estimate,
 )
@@ -451,7 +452,7 @@ class StrapdownFilter:
             moved_m = math.hypot(innovation[0] - s.jump[1], innovation[1] - s.jump[2])
             back = not past_gate and offset_m < moved_m  # the track's fixes again
             if not back and age_s < cfg.max_jump_s and offset_m <= cfg.gps_lost_beyond_m and \
-                    moved_m <= max(cfg.jump_spread_m, 4.0 * sigma_m) + cfg.jump_drift_mps * age_s:
+                    moved_m <= leap_m(cfg, sigma_m) + cfg.jump_drift_mps * age_s:
                 if not self._map_prefers_jump(age_s, innovation):
                     return True
                 east, north = s.jump_test.mean_innovation_en_m()
@@ -464,8 +465,8 @@ class StrapdownFilter:
         if not past_gate or last is None or t - last[0] > cfg.track_gap_s or \
                 not cfg.jump_min_m <= offset_m <= cfg.gps_lost_beyond_m:
             return False
-        leap_m = math.hypot(innovation[0] - last[1], innovation[1] - last[2])
-        if leap_m <= max(cfg.jump_spread_m, 4.0 * sigma_m):
+        leap = math.hypot(innovation[0] - last[1], innovation[1] - last[2])
+        if leap <= leap_m(cfg, sigma_m):
             return False
         s.jump = (t, float(innovation[0]), float(innovation[1]))
         s.jump_test = JumpMapTest()

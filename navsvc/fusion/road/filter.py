@@ -36,6 +36,7 @@ from navsvc.fusion.gnss import (
     fit_track,
     gps_problem,
     gps_sigma_m,
+    leap_m,
     nearest_road_var_m2,
     turn_between_paths,
     unstarted_estimate,
@@ -745,7 +746,7 @@ class RoadFilter:
         if step is None or undone or not self._odometer_counts() or len(fixes) < 3 or \
                 t - fixes[-2][0] > self.config.track_gap_s:
             return
-        spread_m = max(self.config.jump_spread_m, 4.0 * sigma_m)
+        spread_m = leap_m(self.config, sigma_m)
         (_, e0, n0, d0), (_, e1, n1, d1) = fixes[-3], fixes[-2]
         if math.hypot(e1 - e0, n1 - n0) - (d1 - d0) > spread_m:
             return  # the fix before leapt too: this is its return, not a jump
@@ -769,7 +770,7 @@ class RoadFilter:
         if s.start_up_jump is None or step is None:
             return False
         step_e, step_n, driven_m = step
-        driven = driven_m + max(self.config.jump_spread_m, 4.0 * sigma_m)
+        driven = driven_m + leap_m(self.config, sigma_m)
         if math.hypot(step_e, step_n) > driven >= math.hypot(step_e + s.start_up_jump[1],
                                                               step_n + s.start_up_jump[2]):
             s.start_up_jump = None
@@ -783,7 +784,7 @@ class RoadFilter:
         burst at a standstill, Monaco 91 of the tune split)."""
         s, cfg = self.state, self.config
         n, mean_e, mean_n, last_t, scatter_m2 = s.still_fixes
-        spread = max(cfg.jump_spread_m, 4.0 * sigma_m)
+        spread = leap_m(cfg, sigma_m)
         if n and t - last_t > cfg.track_gap_s:  # no fix for a while: the car may have moved
             n, s.still_before_jump = 0, None
         back = s.still_before_jump
@@ -1406,8 +1407,7 @@ class RoadFilter:
             return False
         if s.jump_since_t is not None:
             moved = self._from_the_jump_m(innovation)
-            allowed = max(cfg.jump_spread_m, 4.0 * sigma_m) + \
-                cfg.jump_drift_mps * self._jump_age_s(t)
+            allowed = leap_m(cfg, sigma_m) + cfg.jump_drift_mps * self._jump_age_s(t)
             if moved > allowed:
                 s.jump_since_t = None
                 return False
@@ -1466,8 +1466,8 @@ class RoadFilter:
         last = self.state.track_innovation
         if last is None or t - last[0] > self.config.track_gap_s:
             return False
-        leap_m = math.hypot(innovation[0] - last[1], innovation[1] - last[2])
-        return leap_m > max(self.config.jump_spread_m, 4.0 * sigma_m)
+        leap = math.hypot(innovation[0] - last[1], innovation[1] - last[2])
+        return leap > leap_m(self.config, sigma_m)
 
     def _jump_age_s(self, t: float) -> float:
         """How long the refused jump has had fixes (:meth:`_pause_refusals`)."""
@@ -1723,8 +1723,7 @@ class RoadFilter:
         elif s.gated_offset_m is not None and \
                 math.hypot(innovation[0] - s.gated_offset_m[0],
                            innovation[1] - s.gated_offset_m[1]) > \
-                max(cfg.jump_spread_m, 4.0 * sigma_m) + \
-                cfg.weighted_diverging_mps * (fix.t - s.first_gated_t):
+                leap_m(cfg, sigma_m) + cfg.weighted_diverging_mps * (fix.t - s.first_gated_t):
             s.first_gated_t = None
             return GpsDecision(GpsAction.REINITIALIZE, 1.0, 1.0, "re-acquired: the fixes run "
                                "away from the estimate (it diverges)", heading_lost=True)
