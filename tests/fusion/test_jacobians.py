@@ -26,7 +26,19 @@ from navsvc.fusion.ins import (
     mechanise,
     radii_m,
 )
-from navsvc.fusion.ins.error_state import ATT, BA, BG, N_ERR, POS, SA, SG, VEL, corrected
+from navsvc.fusion.ins.error_state import (
+    ATT,
+    BA,
+    BG,
+    GB,
+    N_ERR,
+    N_KFGINS,
+    POS,
+    SA,
+    SG,
+    VEL,
+    corrected,
+)
 from navsvc.fusion.ins.error_state import _transition as transition
 from navsvc.fusion.road import measurements as m
 from navsvc.fusion.road import motion
@@ -95,13 +107,13 @@ def test_road_measurement_jacobians(x: Array, model: m.GyroRate) -> None:
 # --- the INS error state -------------------------------------------------------------------
 NOISE = ImuNoise.from_kfgins(0.6, 0.4, 50.0, 2000.0, 1.0)
 INS_STEPS = np.concatenate([[1e-3] * 3, [1e-4] * 3, [1e-6] * 3, [1e-7] * 3, [1e-5] * 3,
-                            [1e-6] * 6])
+                            [1e-6] * 6, [1e-3] * 2])
 
 
 def with_error(s: NavState, dx: Array) -> NavState:
     """A navigation state whose error is ``dx`` (the filter's convention) when ``s`` is true:
-    position, velocity and attitude err by ``dx`` (``corrected`` removes it), the biases and
-    scale factors fall short by it (feedback adds it)."""
+    position, velocity, attitude and GNSS bias err by ``dx`` (``corrected`` removes it), the
+    IMU's biases and scale factors fall short by it (feedback adds it)."""
     out = corrected(s, -dx)
     out.gyro_bias_rps = s.gyro_bias_rps - dx[BG]
     out.accel_bias_mps2 = s.accel_bias_mps2 - dx[BA]
@@ -125,6 +137,7 @@ def error_of(est: NavState, true: NavState) -> Array:
     d[BA] = true.accel_bias_mps2 - est.accel_bias_mps2
     d[SG] = true.gyro_scale - est.gyro_scale
     d[SA] = true.accel_scale - est.accel_scale
+    d[GB] = est.gps_bias_ne_m - true.gps_bias_ne_m
     return d
 
 
@@ -132,7 +145,7 @@ vec3 = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).map(np.array)
 nav_states = st.builds(
     lambda lat, v, rpy, bg, ba, sg: NavState(
         0.0, math.radians(lat), 0.1, 100.0, v * 20.0, euler_to_dcm(*(rpy * [0.3, 0.3, 3.0])),
-        bg * 1e-3, ba * 0.1, sg * 1e-3, ba[::-1] * 1e-3),
+        bg * 1e-3, ba * 0.1, sg * 1e-3, ba[::-1] * 1e-3, v[:2] * 5.0),
     st.floats(-60.0, 60.0), vec3, vec3, vec3, vec3, vec3)
 
 
@@ -158,7 +171,7 @@ def test_gyro_input_jacobian(x: Array, gyro_rps: float) -> None:
 @given(nav_states, vec3)
 def test_ins_measurement_jacobians(s: NavState, lever: Array) -> None:
     """The residual's change when the state errs by ``dx`` is ``H dx``."""
-    ins = ins_filter(s, np.eye(N_ERR), NOISE, lever)
+    ins = ins_filter(s, np.eye(N_KFGINS), NOISE, lever, gps_bias_sigma_m=3.0)
     for model in ins_measurements(s):
         H = model.model(ins)[2]  # type: ignore[attr-defined]
 
@@ -202,6 +215,6 @@ def test_ins_transition_to_first_order(s: NavState, rate: Array, force: Array) -
     numeric = numeric_jacobian(after, np.zeros(N_ERR), INS_STEPS)
     w_b, f_b = (x / dt for x in s.compensate(dtheta, dvel, dt))
     phi = transition(true_after.lat_rad, true_after.h_m, true_after.v_ned, true_after.c_bn,
-                     f_n, w_b, f_b, dt, NOISE.bias_corr_time_s, 1.0)
+                     f_n, w_b, f_b, dt, NOISE.bias_corr_time_s, 30.0, 1.0)
     np.testing.assert_allclose((phi - np.eye(N_ERR)) / dt, (numeric - np.eye(N_ERR)) / dt,
                                atol=0.05)

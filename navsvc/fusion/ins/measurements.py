@@ -40,7 +40,8 @@ def _linearised(ins: InsFilter, y: Array, H: Array, R: Array) -> Linearised:
 
 @dataclass(frozen=True)
 class GnssPosition:
-    """A GNSS position at the state's time, at the antenna (lever arm in the body frame)."""
+    """A GNSS position at the state's time, at the antenna (lever arm in the body frame),
+    with the receiver's slowly changing error (the filter's GNSS bias states)."""
 
     fix: GnssFix
     gate_dof: ClassVar[int] = 3
@@ -52,7 +53,7 @@ class GnssPosition:
             raise ValueError(f"GNSS standard deviations must be finite and > 0, got {sigma}")
 
     def model(self, ins: InsFilter) -> Linearised:
-        y, H = ins.position_residual(self.fix)
+        y, H = ins.gnss_position_residual(self.fix)
         return _linearised(ins, y, H, np.diag(self.fix.sigma_ned_m**2))
 
 

@@ -31,7 +31,7 @@ class Mechanisation(enum.Enum):
 @dataclass
 class NavState:
     """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, and the estimates of
-    the sensors' biases and scale factors."""
+    the sensors' biases and scale factors, the GNSS receiver's (north, east m) among them."""
 
     t: float
     lat_rad: float
@@ -43,12 +43,13 @@ class NavState:
     accel_bias_mps2: Array = field(default_factory=lambda: np.zeros(3))
     gyro_scale: Array = field(default_factory=lambda: np.zeros(3))
     accel_scale: Array = field(default_factory=lambda: np.zeros(3))
+    gps_bias_ne_m: Array = field(default_factory=lambda: np.zeros(2))
 
     def copy(self) -> NavState:
         return NavState(self.t, self.lat_rad, self.lon_rad, self.h_m, self.v_ned.copy(),
                         self.c_bn.copy(), self.gyro_bias_rps.copy(),
                         self.accel_bias_mps2.copy(), self.gyro_scale.copy(),
-                        self.accel_scale.copy())
+                        self.accel_scale.copy(), self.gps_bias_ne_m.copy())
 
     def compensate(self, dtheta: Array, dvel: Array, dt: float) -> tuple[Array, Array]:
         """IMU increments less the estimated bias and scale errors."""

@@ -5,8 +5,9 @@ ones (``feedback``, ``feedforward``) estimate the error of the inertial solution
 :class:`.error_state.InsFilter`. Here the filter's state is the navigation solution (the
 paper's set N) and its system model is the equations of motion themselves:
 
-- state (21): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
-  gyro and accelerometer biases (rad/s, m/s²) and scale factors;
+- state (23): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
+  gyro and accelerometer biases (rad/s, m/s²) and scale factors, the GNSS bias (north, east,
+  m);
 - the mean follows the same mechanisation as the other modes (first order or RK4);
 - the covariance follows the Jacobian of the continuous equations of motion (Euler-angle
   kinematics, transport and earth rate, gravity), taken by central differences, so there is
@@ -32,6 +33,7 @@ from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm
 from navsvc.fusion.ins.earth import EarthModel, nav_rates, normal_gravity_mps2, radii_m
 from navsvc.fusion.ins.error_state import (
     N_ERR,
+    N_KFGINS,
     POS,
     GnssFix,
     ImuNoise,
@@ -41,16 +43,18 @@ from navsvc.fusion.ins.error_state import (
 )
 from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise
 
-# central-difference steps per state: about 0.1 m, 1 mm/s, 2 arc-seconds, tiny biases
+# central-difference steps per state: about 0.1 m, 1 mm/s, 2 arc-seconds, tiny biases, 1 cm
 STEP = np.array([1.5e-8, 1.5e-8, 0.1, 1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5,
-                 1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5])
+                 1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5,
+                 1e-2, 1e-2])
 MAX_PITCH_RAD = math.radians(85.0)  # Euler kinematics are singular at ±90°
 MAX_COVARIANCE_STEP_S = 0.02
 MAX_ANGLE_SIGMA_RAD = math.pi
 
 
 @jit
-def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, rotating: float) -> Array:
+def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, gps_tau: float,
+                      rotating: float) -> Array:
     """dx/dt of the navigation state under measured body rate and specific force."""
     lat, h, v = x[0], x[2], x[3:6]
     rm, rn = radii_m(lat)
@@ -69,13 +73,14 @@ def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, rotating: f
     out[6] = w[0] + (w[1] * sr + w[2] * cr) * math.tan(pitch)
     out[7] = w[1] * cr - w[2] * sr
     out[8] = (w[1] * sr + w[2] * cr) / math.cos(pitch)
-    out[9:N_ERR] = -x[9:N_ERR] / tau
+    out[9:N_KFGINS] = -x[9:N_KFGINS] / tau
+    out[N_KFGINS:N_ERR] = -x[N_KFGINS:N_ERR] / gps_tau
     return out
 
 
 @jit
 def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, tau: float,
-                      rotating: float, q_density: Array) -> Array:
+                      gps_tau: float, rotating: float, q_density: Array) -> Array:
     """P through one step: Φ = I + F dt with F = ∂f/∂x by central differences; the sensor
     noise enters through ∂f/∂(rate, force), which is −∂f/∂(biases) as biases subtract. A long
     step (a gap in the IMU data) is taken as sub-steps of ``MAX_COVARIANCE_STEP_S``, as
@@ -86,8 +91,9 @@ def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, ta
         xp, xm = x.copy(), x.copy()
         xp[i] += STEP[i]
         xm[i] -= STEP[i]
-        f_mat[:, i] = (_state_derivative(xp, w_ib, f_b, tau, rotating)
-                       - _state_derivative(xm, w_ib, f_b, tau, rotating)) / (2.0 * STEP[i])
+        f_mat[:, i] = (_state_derivative(xp, w_ib, f_b, tau, gps_tau, rotating)
+                       - _state_derivative(xm, w_ib, f_b, tau, gps_tau, rotating)
+                       ) / (2.0 * STEP[i])
     g = -f_mat[:, 9:15]
     steps = max(1, math.ceil(dt / MAX_COVARIANCE_STEP_S))
     h = dt / steps
@@ -109,13 +115,14 @@ def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, ta
 def total_state(s: NavState) -> Array:
     roll, pitch, yaw = dcm_to_euler(s.c_bn)
     return np.concatenate([[s.lat_rad, s.lon_rad, s.h_m], s.v_ned, [roll, pitch, yaw],
-                           s.gyro_bias_rps, s.accel_bias_mps2, s.gyro_scale, s.accel_scale])
+                           s.gyro_bias_rps, s.accel_bias_mps2, s.gyro_scale, s.accel_scale,
+                           s.gps_bias_ne_m])
 
 
 def nav_state(t: float, x: Array) -> NavState:
     return NavState(t, float(x[0]), float(x[1]), float(x[2]), x[3:6].copy(),
                     euler_to_dcm(x[6], x[7], x[8]), x[9:12].copy(), x[12:15].copy(),
-                    x[15:18].copy(), x[18:21].copy())
+                    x[15:18].copy(), x[18:21].copy(), x[21:23].copy())
 
 
 def _metres_per_unit(s: NavState) -> Array:
@@ -130,14 +137,15 @@ class DirectInsFilter(InsFilter):
     def __init__(self, state: NavState, p0: Array, noise: ImuNoise,
                  lever_arm_b_m: Array | None = None,
                  mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
-                 earth: EarthModel = EarthModel.WGS84) -> None:
+                 earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
+                 gps_bias_tau_s: float = 30.0) -> None:
         """``p0`` as for the other modes (position in NED metres, attitude per axis); it is
         carried into the state's units."""
         super().__init__(state, p0, noise, lever_arm_b_m, Integration.DIRECT, mechanisation,
-                         earth)
+                         earth, gps_bias_sigma_m, gps_bias_tau_s)
         scale = np.ones(N_ERR)
         scale[POS] = 1.0 / _metres_per_unit(state)
-        self.P = p0 * np.outer(scale, scale)
+        self.P = self.P * np.outer(scale, scale)
         self._q_density = np.concatenate([[noise.arw_rad_per_sqrt_s**2] * 3,
                                           [noise.vrw_mps_per_sqrt_s**2] * 3,
                                           self._q_density[9:]])
@@ -149,8 +157,8 @@ class DirectInsFilter(InsFilter):
         before = self.state
         dt = t - before.t
         self.P = _propagate_direct(self.P, total_state(before), dtheta / dt, dvel / dt, dt,
-                                   self.noise.bias_corr_time_s, self._rotating,
-                                   self._q_density)
+                                   self.noise.bias_corr_time_s, self.gps_bias_tau_s,
+                                   self._rotating, self._q_density)
         self.state, _ = mechanise(before, t, *before.compensate(dtheta, dvel, dt),
                                   self.mechanisation, self.earth)
         decay = 1.0 - dt / self.noise.bias_corr_time_s
@@ -158,6 +166,7 @@ class DirectInsFilter(InsFilter):
         self.state.accel_bias_mps2 = before.accel_bias_mps2 * decay
         self.state.gyro_scale = before.gyro_scale * decay
         self.state.accel_scale = before.accel_scale * decay
+        self.state.gps_bias_ne_m = before.gps_bias_ne_m * (1.0 - dt / self.gps_bias_tau_s)
 
     def position_cov_ned_m2(self) -> Array:
         m = _metres_per_unit(self.state)
@@ -216,9 +225,12 @@ class DirectInsFilter(InsFilter):
 def ins_filter(state: NavState, p0: Array, noise: ImuNoise, lever_arm_b_m: Array | None = None,
                integration: Integration = Integration.FEEDBACK,
                mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
-               earth: EarthModel = EarthModel.WGS84) -> InsFilter:
+               earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
+               gps_bias_tau_s: float = 30.0) -> InsFilter:
     """The filter of an integration: ``DirectInsFilter`` for ``direct``, else ``InsFilter``.
     ``p0`` is in the error-state units of ``InsFilter`` (position in NED metres)."""
     if integration == Integration.DIRECT:
-        return DirectInsFilter(state, p0, noise, lever_arm_b_m, mechanisation, earth)
-    return InsFilter(state, p0, noise, lever_arm_b_m, integration, mechanisation, earth)
+        return DirectInsFilter(state, p0, noise, lever_arm_b_m, mechanisation, earth,
+                               gps_bias_sigma_m, gps_bias_tau_s)
+    return InsFilter(state, p0, noise, lever_arm_b_m, integration, mechanisation, earth,
+                     gps_bias_sigma_m, gps_bias_tau_s)
