@@ -31,7 +31,8 @@ class Mechanisation(enum.Enum):
 @dataclass
 class NavState:
     """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, and the estimates of
-    the sensors' biases and scale factors, the GNSS receiver's (north, east m) among them."""
+    the IMU's biases and scale factors; and the GNSS receiver's bias (north, east m), which
+    the filter considers but does not estimate (it stays at its prior, zero)."""
 
     t: float
     lat_rad: float

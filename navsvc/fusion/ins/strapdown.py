@@ -362,7 +362,7 @@ class StrapdownFilter:
             s.height_m = fix.alt_m
         # without a GPS height, the last one known (loosely) keeps the vertical channel bounded
         h_sigma = 2.0 * sigma if fix.alt_m is not None else NO_HEIGHT_SIGMA_M
-        white = sigma * math.sqrt(1.0 - self.config.gps_bias_share ** 2)  # the rest: the bias
+        white = sigma * math.sqrt(1.0 - self.config.gps_bias_share ** 2)  # bias states: the rest
         position = GnssPosition(GnssFix(
             fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg), s.height_m,
             np.array([white, white, h_sigma])))
