@@ -144,11 +144,14 @@ def fixed_gain_update(x: Array, P: Array, y: Array, H: Array, R: Array,
 
 
 def correct_leaving(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
-                    unchanged: tuple[int, ...]) -> tuple[Array, Array]:
-    """The Kalman update with a zero gain for the states ``unchanged`` (a Schmidt, or
+                    unchanged: tuple[int, ...], max_nis: float = math.inf
+                    ) -> tuple[Array, Array, float]:
+    """:func:`correct` with a zero gain for the states ``unchanged`` (a Schmidt, or
     "consider", update: the Joseph form keeps ``P`` right for that gain). For a measurement
-    that says nothing of those states although its linearisation seems to."""
-    return correct_leaving_compiled(x, P, _f64(z - h), _f64(H), _f64(R), kept_mask(unchanged))
+    that says nothing of those states although its linearisation seems to, and for states
+    a filter considers but does not estimate. Returns ``(x, P, nis)``, as :func:`correct`."""
+    return correct_leaving_compiled(x, P, _f64(z - h), _f64(H), _f64(R), kept_mask(unchanged),
+                                    max_nis)
 
 
 def kept_mask(unchanged: tuple[int, ...], n_states: int | None = None) -> Array:
@@ -159,16 +162,24 @@ def kept_mask(unchanged: tuple[int, ...], n_states: int | None = None) -> Array:
 
 
 @jit
-def correct_leaving_compiled(x: Array, P: Array, y: Array, H: Array, R: Array,
-                             keep: Array) -> tuple[Array, Array]:  # pragma: no cover
+def correct_leaving_compiled(x: Array, P: Array, y: Array, H: Array, R: Array, keep: Array,
+                             max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover
     """:func:`correct_leaving` for compiled callers: innovation ``y``; ``keep`` 0 for the
     states left as they are (states past its end are changed)."""
     PHt = matmul(P, H.T)
-    K = matmul(PHt, inverse(matmul(H, PHt) + R))
+    S_inv = inverse(matmul(H, PHt) + R)
+    nis = 0.0
+    for i in range(len(y)):
+        for j in range(len(y)):
+            nis += y[i] * S_inv[i, j] * y[j]
+    if not nis <= max_nis:
+        return x, P, nis
+    K = matmul(PHt, S_inv)
     for i in range(len(keep)):
         if keep[i] == 0.0:
             K[i, :] = 0.0
-    return joseph(x, P, y, H, R, K)
+    x_new, P_new = joseph(x, P, y, H, R, K)
+    return x_new, P_new, nis
 
 
 def no_surer_than(P: Array, H: Array, R: Array, probability: float = 1.0) -> Array:

@@ -153,7 +153,6 @@ class InsFilter:
         phi = _transition(s.lat_rad, s.h_m, s.v_ned, s.c_bn, f_n, dtheta_c / dt, dvel_c / dt,
                           dt, self.noise.bias_corr_time_s, self.gps_bias_tau_s, self._rotating)
         self.P = _propagate(self.P, phi, self._q_density * dt)
-        s.gps_bias_ne_m = s.gps_bias_ne_m * (1.0 - dt / self.gps_bias_tau_s)
         if self.integration == Integration.FEEDFORWARD:
             self.dx = phi @ self.dx
 
@@ -188,9 +187,10 @@ class InsFilter:
             else:
                 self.gated = 0
             limit = math.inf
-        if not kalman.nis(self.P, H, R, z - h) <= limit:
+        dx, self.P, nis = kalman.correct_leaving(self.dx, self.P, z, h, H, R, CONSIDERED,
+                                                 limit)
+        if not nis <= limit:
             return False
-        dx, self.P = kalman.correct_leaving(self.dx, self.P, z, h, H, R, CONSIDERED)
         self._correct(dx)
         return True
 

@@ -166,7 +166,6 @@ class DirectInsFilter(InsFilter):
         self.state.accel_bias_mps2 = before.accel_bias_mps2 * decay
         self.state.gyro_scale = before.gyro_scale * decay
         self.state.accel_scale = before.accel_scale * decay
-        self.state.gps_bias_ne_m = before.gps_bias_ne_m * (1.0 - dt / self.gps_bias_tau_s)
 
     def position_cov_ned_m2(self) -> Array:
         m = _metres_per_unit(self.state)

@@ -310,7 +310,8 @@ def _standstill(x: Array, P: Array, p: Array) -> tuple[Array, Array]:  # pragma:
     R[0, 0], R[1, 1] = p[P_ZUPT_SPEED_VAR], p[P_ZUPT_RATE_VAR]
     y = np.empty(2)
     y[0], y[1] = 0.0 - x[SPEED], 0.0 - x[HEADING_RATE]  # z - h, as correct_leaving
-    return kalman.correct_leaving_compiled(x, P, y, H, R, _STANDSTILL_KEEP)
+    x, P, _ = kalman.correct_leaving_compiled(x, P, y, H, R, _STANDSTILL_KEEP, math.inf)
+    return x, P
 
 
 @jit
@@ -329,8 +330,9 @@ def _steering(x: Array, P: Array, p: Array, angle_left_rad: float
     H[0, GYRO_BIAS] = -x[SPEED] * sec2 / wheelbase
     y = np.empty(1)
     y[0] = 0.0 - h
-    return kalman.correct_leaving_compiled(x, P, y, H, np.array([[sigma ** 2]]),
-                                           _STEERING_KEEP)
+    x, P, _ = kalman.correct_leaving_compiled(x, P, y, H, np.array([[sigma ** 2]]),
+                                              _STEERING_KEEP, math.inf)
+    return x, P
 
 
 def run_params(config: FusionConfig, profile: Profile, process: ProcessNoise,

@@ -351,9 +351,7 @@ class RoadFilter:
         limit = math.inf if gate_dof is None else \
             kalman.gate_limit(gate_dof, self.config.gps_gate_scale)
         if leaving:
-            nis = kalman.nis(s.P, H, R, z - h)
-            if nis <= limit:
-                s.x, s.P = kalman.correct_leaving(s.x, s.P, z, h, H, R, leaving)
+            s.x, s.P, nis = kalman.correct_leaving(s.x, s.P, z, h, H, R, leaving, limit)
         else:
             s.x, s.P, nis = kalman.correct(s.x, s.P, z, h, H, R, limit)
         if not nis <= limit:
@@ -390,7 +388,7 @@ class RoadFilter:
             self._fuse_odometer(packet)
         elif isinstance(packet, SteeringSample) and SteeringRate in used:
             s = self.state
-            s.x, s.P = kalman.correct_leaving(
+            s.x, s.P, _ = kalman.correct_leaving(
                 s.x, s.P, *SteeringRate(packet.angle_rad, cfg.wheelbase_m,
                                         cfg.steering_sigma_rad).model(s.x),
                 unchanged=STEERING_LEAVES)
@@ -425,8 +423,8 @@ class RoadFilter:
             # for a car creeping through a corner: the gyro still sees it turn
             s.still_samples += 1
             if s.still_samples >= cfg.stationary_after_samples:
-                s.x, s.P = kalman.correct_leaving(s.x, s.P, *ZeroMotion().model(s.x),
-                                                  unchanged=STANDSTILL_LEAVES)
+                s.x, s.P, _ = kalman.correct_leaving(s.x, s.P, *ZeroMotion().model(s.x),
+                                                     unchanged=STANDSTILL_LEAVES)
                 return
         else:
             s.still_samples = 0
