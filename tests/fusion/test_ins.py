@@ -118,7 +118,7 @@ def test_bad_samples_are_refused_and_change_nothing(integration: Integration) ->
 def test_covariance_stays_symmetric_positive_definite(steps: list, integration: Integration,
                                                       mech: Mechanisation) -> None:
     ins = ins_filter(at_rest(), P0, NOISE, np.array([0.5, 0.0, -1.0]), integration, mech,
-                     gps_bias_sigma_m=2.0)
+                     gps_bias_sigma_m=2.0, gps_latency_sigma_s=0.1, mount_sigma_rad=0.05)
     t = 0.0
     for dt, rate, accel, fix in steps:
         t += dt

@@ -31,6 +31,8 @@ from navsvc.fusion.ins.error_state import (
     BA,
     BG,
     GB,
+    LAT,
+    MNT,
     N_ERR,
     N_KFGINS,
     POS,
@@ -107,18 +109,21 @@ def test_road_measurement_jacobians(x: Array, model: m.GyroRate) -> None:
 # --- the INS error state -------------------------------------------------------------------
 NOISE = ImuNoise.from_kfgins(0.6, 0.4, 50.0, 2000.0, 1.0)
 INS_STEPS = np.concatenate([[1e-3] * 3, [1e-4] * 3, [1e-6] * 3, [1e-7] * 3, [1e-5] * 3,
-                            [1e-6] * 6, [1e-3] * 2])
+                            [1e-6] * 6, [1e-3] * 2, [1e-4], [1e-6]])
 
 
 def with_error(s: NavState, dx: Array) -> NavState:
     """A navigation state whose error is ``dx`` (the filter's convention) when ``s`` is true:
     position, velocity, attitude and GNSS bias err by ``dx`` (``corrected`` removes it), the
-    IMU's biases and scale factors fall short by it (feedback adds it)."""
+    IMU's biases and scale factors fall short by it (feedback adds it), the latency and the
+    mount exceed it (feedback takes it off)."""
     out = corrected(s, -dx)
     out.gyro_bias_rps = s.gyro_bias_rps - dx[BG]
     out.accel_bias_mps2 = s.accel_bias_mps2 - dx[BA]
     out.gyro_scale = s.gyro_scale - dx[SG]
     out.accel_scale = s.accel_scale - dx[SA]
+    out.gps_latency_s = s.gps_latency_s + dx[LAT]
+    out.mount_pitch_rad = s.mount_pitch_rad + dx[MNT]
     return out
 
 
@@ -138,6 +143,8 @@ def error_of(est: NavState, true: NavState) -> Array:
     d[SG] = true.gyro_scale - est.gyro_scale
     d[SA] = true.accel_scale - est.accel_scale
     d[GB] = est.gps_bias_ne_m - true.gps_bias_ne_m
+    d[LAT] = est.gps_latency_s - true.gps_latency_s
+    d[MNT] = est.mount_pitch_rad - true.mount_pitch_rad
     return d
 
 
@@ -145,7 +152,8 @@ vec3 = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).map(np.array)
 nav_states = st.builds(
     lambda lat, v, rpy, bg, ba, sg: NavState(
         0.0, math.radians(lat), 0.1, 100.0, v * 20.0, euler_to_dcm(*(rpy * [0.3, 0.3, 3.0])),
-        bg * 1e-3, ba * 0.1, sg * 1e-3, ba[::-1] * 1e-3, v[:2] * 5.0),
+        bg * 1e-3, ba * 0.1, sg * 1e-3, ba[::-1] * 1e-3, v[:2] * 5.0, 0.1 + 0.1 * sg[0],
+        rpy[0] * 0.1),
     st.floats(-60.0, 60.0), vec3, vec3, vec3, vec3, vec3)
 
 

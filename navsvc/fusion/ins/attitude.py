@@ -55,3 +55,12 @@ def level_from_accel(mean_f_b: Array) -> tuple[float, float]:
     fx, fy, fz = mean_f_b
     return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
 
+
+
+def body_to_vehicle(mount_pitch_rad: float) -> tuple[Array, Array]:
+    """The rotation from the IMU's body frame to the vehicle's (forward along its wheels'
+    track, right, down) when the vehicle's axes are pitched ``mount_pitch_rad`` from the
+    body's, and its derivative by that pitch."""
+    c, s = math.cos(mount_pitch_rad), math.sin(mount_pitch_rad)
+    return (np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]]),
+            np.array([[-s, 0.0, -c], [0.0, 0.0, 0.0], [c, 0.0, -s]]))

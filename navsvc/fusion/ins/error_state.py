@@ -3,7 +3,7 @@ integrations.
 
 Seed: Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md); conventions as KF-GINS.
 
-- Error state (23): KF-GINS's 21, position error (NED, m), velocity error (NED, m/s), attitude
+- Error state (25): KF-GINS's 21, position error (NED, m), velocity error (NED, m/s), attitude
   error ψ (rad; estimated attitude = (I + [ψ×]) true), gyro and accelerometer biases (rad/s,
   m/s²) and scale factors (measured = (1 + scale) true + bias), each a first-order
   Gauss–Markov process; and the GNSS position bias (north, east, m), the slowly changing part
@@ -18,7 +18,19 @@ Seed: Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md); conventions as KF-GIN
   road filter, with its bias states: 0.5 degrees, 1.5 %; considered: 0.84 degrees, 21 %, the
   rest mostly non-line-of-sight runs); estimated, the bias's random walk
   took what the fixes said of the position (the INS ran 20 m off with the bias estimate
-  following it, every fix "accepted").
+  following it, every fix "accepted"). And the receiver's latency (s), a constant, as in
+  the road filter: a fix is where the antenna was that long before its time stamp, metres
+  back along the track at speed (comma2k19's u-blox: about 0.1 s, 2 m on the highway). It
+  is learnt slowly (a constant along-track offset is the considered bias's as much as the
+  latency's; 300 s of simulated 10 Hz fixes 0.2 s late moved it from the prior's 0.1 s to
+  0.04-0.11 s), so its prior (the road filter's, 0.1 +- 0.1 s) does most of the work and its
+  sigma keeps the along-track doubt honest. And the IMU's mount pitch (a constant): the non-holonomic
+  constraint and the wheel speed hold for the vehicle's axes, not for an IMU pitched in it
+  (comma2k19's phone: about 4 degrees); taken as level, the constraint pitched the attitude
+  until gravity leaked into the velocity (78 m off after a 20 s outage). A yawed mount needs
+  no state: the heading takes it up (the gyro's down axis does not see it; forward
+  acceleration leaks sideways only while the car speeds up or slows down, gravity never).
+  Zero sigmas leave these out, as KF-GINS.
 - Integrations: ``feedback`` (default; each correction goes into the navigation state and the
   biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
   open loop; the output is that solution less the estimated error, which keeps propagating);
@@ -40,7 +52,7 @@ import numpy as np
 
 from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
-from navsvc.fusion.ins.attitude import dcm_to_euler, skew
+from navsvc.fusion.ins.attitude import body_to_vehicle, dcm_to_euler, skew
 from navsvc.fusion.ins.earth import EARTH_RATE_RPS, EarthModel, nav_rates, radii_m
 from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition
 from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise, sample_problem
@@ -48,11 +60,13 @@ from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise, 
 if TYPE_CHECKING:
     from navsvc.fusion.ins.measurements import InsMeasurement
 
-N_ERR = 23
-N_KFGINS = 21  # the states KF-GINS has (all but the GNSS bias)
+N_ERR = 25
+N_KFGINS = 21  # the states KF-GINS has (all but the GNSS bias, its latency, the mount)
 POS, VEL, ATT, BG, BA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
 SG, SA = slice(15, 18), slice(18, 21)  # gyro and accelerometer scale factors
 GB = slice(21, 23)  # GNSS position bias, north and east
+LAT = 23  # GNSS latency
+MNT = 24  # the mount's pitch
 CONSIDERED = (21, 22)  # the states every update leaves as they are: the GNSS bias
 GATE_FLOOR_M = 0.5
 GATED_BEFORE_SOFT = 3
@@ -96,21 +110,27 @@ class GnssFix:
 
 
 class InsFilter:
-    """One vehicle's INS with its 23-state error-state EKF."""
+    """One vehicle's INS with its 25-state error-state EKF."""
 
     def __init__(self, state: NavState, p0: Array, noise: ImuNoise,
                  lever_arm_b_m: Array | None = None,
                  integration: Integration = Integration.FEEDBACK,
                  mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
                  earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
-                 gps_bias_tau_s: float = 30.0) -> None:
+                 gps_bias_tau_s: float = 30.0, gps_latency_sigma_s: float = 0.0,
+                 max_gps_latency_s: float = 0.5, mount_sigma_rad: float = 0.0) -> None:
         """``p0``: the covariance of KF-GINS's 21 states; the GNSS bias starts at its
-        steady sigma ``gps_bias_sigma_m`` (:meth:`set_gps_bias_sigma`)."""
+        steady sigma ``gps_bias_sigma_m`` (:meth:`set_gps_bias_sigma`), the latency at the
+        state's with ``gps_latency_sigma_s``, and is kept within 0 and
+        ``max_gps_latency_s``; the mount's pitch at the state's with ``mount_sigma_rad``."""
         self.state = state  # the inertial solution (open loop in feedforward mode)
         self.P = np.zeros((N_ERR, N_ERR))
         self.P[:N_KFGINS, :N_KFGINS] = p0
         self.P[GB, GB] = gps_bias_sigma_m**2 * np.eye(2)
+        self.P[LAT, LAT] = gps_latency_sigma_s**2
+        self.P[MNT, MNT] = mount_sigma_rad**2
         self.gps_bias_tau_s = gps_bias_tau_s
+        self.max_gps_latency_s = max_gps_latency_s
         self.dx = np.zeros(N_ERR)  # estimated error (stays zero in feedback mode)
         self.noise = noise
         self.lever_arm_b_m = np.zeros(3) if lever_arm_b_m is None else lever_arm_b_m
@@ -130,11 +150,10 @@ class InsFilter:
         self.set_gps_bias_sigma(gps_bias_sigma_m)
 
     def set_gps_bias_sigma(self, sigma_m: float) -> None:
-        """The GNSS bias's steady sigma (from the latest fix's): its process noise. The last
-        two densities are the bias's in this filter's and in the direct filter's layout; the
+        """The GNSS bias's steady sigma (from the latest fix's): its process noise. The
         array is replaced, not written into (snapshots share it)."""
         q = self._q_density.copy()
-        q[-2:] = 2.0 * sigma_m**2 / self.gps_bias_tau_s
+        q[GB] = 2.0 * sigma_m**2 / self.gps_bias_tau_s
         self._q_density = q
 
     def predict(self, t: float, dtheta: Array, dvel: Array) -> None:
@@ -218,11 +237,16 @@ class InsFilter:
 
     # measurement models: (predicted - measured, its Jacobian in the filter's state) --------
     def gnss_position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
-        """:meth:`position_residual` of a GNSS fix: the antenna's position plus the GNSS bias
-        (north, east; considered, so its value stays at its prior, zero)."""
+        """:meth:`position_residual` of a GNSS fix: the antenna's position a latency before
+        the fix's time stamp (back along the velocity) plus the GNSS bias (north, east;
+        considered, so its value stays at its prior, zero)."""
         y, h = self.position_residual(fix)
-        y[:2] += self.state.gps_bias_ne_m
+        s = self.state
+        y[:2] += s.gps_bias_ne_m
         h[:2, GB] = np.eye(2)
+        y -= s.v_ned * s.gps_latency_s
+        h[:, VEL] = -s.gps_latency_s * np.eye(3)
+        h[:, LAT] = -s.v_ned
         return y, h
 
     def position_residual(self, fix: GnssFix) -> tuple[Array, Array]:
@@ -237,13 +261,17 @@ class InsFilter:
         h[:, ATT] = -skew(lever_n)
         return y, h
 
-    def body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
+    def body_velocity_residual(self, z_v: Array) -> tuple[Array, Array]:
+        """The velocity in the vehicle's frame (the body's pitched by the mount)."""
         s = self.state
+        r, d_pitch = body_to_vehicle(s.mount_pitch_rad)
         c_nb = s.c_bn.T
+        v_b = c_nb @ s.v_ned
         h = np.zeros((3, N_ERR))
-        h[:, VEL] = c_nb
-        h[:, ATT] = c_nb @ skew(s.v_ned)
-        return c_nb @ s.v_ned - z_b, h
+        h[:, VEL] = r @ c_nb
+        h[:, ATT] = r @ c_nb @ skew(s.v_ned)
+        h[:, MNT] = d_pitch @ v_b
+        return r @ v_b - z_v, h
 
     def velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
         h = np.zeros((3, N_ERR))
@@ -278,6 +306,9 @@ class InsFilter:
         self.state.accel_bias_mps2 = self.state.accel_bias_mps2 + self.dx[BA]
         self.state.gyro_scale = self.state.gyro_scale + self.dx[SG]
         self.state.accel_scale = self.state.accel_scale + self.dx[SA]
+        self.state.gps_latency_s = min(max(self.state.gps_latency_s - self.dx[LAT], 0.0),
+                                       self.max_gps_latency_s)
+        self.state.mount_pitch_rad = self.state.mount_pitch_rad - self.dx[MNT]
         self.dx = np.zeros(N_ERR)
 
 
@@ -305,7 +336,7 @@ def _transition(lat: float, h: float, v: Array, c: Array, f_n: Array, w_b: Array
     f[3:6, 18:21] = c * f_b
     for i in range(9, N_KFGINS):
         f[i, i] = -1.0 / tau
-    for i in range(N_KFGINS, N_ERR):
+    for i in range(N_KFGINS, LAT):  # the GNSS bias
         f[i, i] = -1.0 / gps_tau
     return np.eye(N_ERR) + f * dt
 
@@ -320,7 +351,7 @@ def _propagate(p: Array, phi: Array, q_dt: Array) -> Array:
 
 def corrected(s: NavState, dx: Array) -> NavState:
     """The navigation state less an estimated error (position, velocity, attitude, GNSS
-    bias)."""
+    bias; the IMU's and the latency are the feedback's)."""
     out = s.copy()
     rm, rn = radii_m(s.lat_rad)
     out.lat_rad = s.lat_rad - dx[0] / (rm + s.h_m)

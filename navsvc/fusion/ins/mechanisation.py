@@ -31,8 +31,10 @@ class Mechanisation(enum.Enum):
 @dataclass
 class NavState:
     """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, and the estimates of
-    the IMU's biases and scale factors; and the GNSS receiver's bias (north, east m), which
-    the filter considers but does not estimate (it stays at its prior, zero)."""
+    the IMU's biases and scale factors; the GNSS receiver's bias (north, east m), which
+    the filter considers but does not estimate (it stays at its prior, zero), and its
+    latency (s: a fix is where the antenna was this long before its time stamp); and the
+    mount's pitch (rad: the vehicle's axes pitched this much from the IMU's body axes)."""
 
     t: float
     lat_rad: float
@@ -45,12 +47,15 @@ class NavState:
     gyro_scale: Array = field(default_factory=lambda: np.zeros(3))
     accel_scale: Array = field(default_factory=lambda: np.zeros(3))
     gps_bias_ne_m: Array = field(default_factory=lambda: np.zeros(2))
+    gps_latency_s: float = 0.0
+    mount_pitch_rad: float = 0.0
 
     def copy(self) -> NavState:
         return NavState(self.t, self.lat_rad, self.lon_rad, self.h_m, self.v_ned.copy(),
                         self.c_bn.copy(), self.gyro_bias_rps.copy(),
                         self.accel_bias_mps2.copy(), self.gyro_scale.copy(),
-                        self.accel_scale.copy(), self.gps_bias_ne_m.copy())
+                        self.accel_scale.copy(), self.gps_bias_ne_m.copy(),
+                        self.gps_latency_s, self.mount_pitch_rad)
 
     def compensate(self, dtheta: Array, dvel: Array, dt: float) -> tuple[Array, Array]:
         """IMU increments less the estimated bias and scale errors."""

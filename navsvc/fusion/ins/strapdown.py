@@ -95,6 +95,7 @@ class StrapdownOptions:
     integration: Integration = Integration.FEEDBACK
     mechanisation: Mechanisation = Mechanisation.FIRST_ORDER
     mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # IMU axes in the body
+    mount_sigma_deg: float = 3.0  # how far the vehicle's pitch may lie from that
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # GPS antenna, body FRD
     nhc: bool = True  # apply the non-holonomic constraint
     nhc_rate_hz: float = 10.0
@@ -606,13 +607,17 @@ class StrapdownFilter:
                               + [speed[1]] * 3 + [sd[2], sd[2], yaw_sigma] + [sd[4]] * 3
                               + [sd[5]] * 3 + [sd[6]] * 6) ** 2)
         s.height_m = fix.alt_m if fix.alt_m is not None else 0.0
+        cfg = self.config
         state = NavState(fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg),
                          s.height_m,
                          speed[0] * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
-                         euler_to_dcm(roll, pitch, yaw))
+                         euler_to_dcm(roll, pitch, yaw), gps_latency_s=cfg.initial_gps_latency_s)
         s.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
                            o.mechanisation, gps_bias_sigma_m=CONSIDERED_BIAS_SHARE * sigma,
-                           gps_bias_tau_s=self.config.gps_bias_tau_s)
+                           gps_bias_tau_s=cfg.gps_bias_tau_s,
+                           gps_latency_sigma_s=cfg.initial_gps_latency_sigma_s,
+                           max_gps_latency_s=cfg.max_gps_latency_s,
+                           mount_sigma_rad=math.radians(o.mount_sigma_deg))
         s.still_f.clear()  # levelled
         s.recent_f.clear()
         s.baseline = ()

@@ -5,9 +5,9 @@ ones (``feedback``, ``feedforward``) estimate the error of the inertial solution
 :class:`.error_state.InsFilter`. Here the filter's state is the navigation solution (the
 paper's set N) and its system model is the equations of motion themselves:
 
-- state (23): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
+- state (25): latitude, longitude (rad), height (m), NED velocity (m/s), roll, pitch, yaw (rad),
   gyro and accelerometer biases (rad/s, m/s²) and scale factors, the GNSS bias (north, east,
-  m);
+  m) and latency (s), the mount's pitch (rad);
 - the mean follows the same mechanisation as the other modes (first order or RK4);
 - the covariance follows the Jacobian of the continuous equations of motion (Euler-angle
   kinematics, transport and earth rate, gravity), taken by central differences, so there is
@@ -29,9 +29,11 @@ from collections.abc import Callable
 import numpy as np
 
 from navsvc.fusion._jit import Array, jit
-from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm
+from navsvc.fusion.ins.attitude import body_to_vehicle, dcm_to_euler, euler_to_dcm
 from navsvc.fusion.ins.earth import EarthModel, nav_rates, normal_gravity_mps2, radii_m
 from navsvc.fusion.ins.error_state import (
+    LAT,
+    MNT,
     N_ERR,
     N_KFGINS,
     POS,
@@ -43,10 +45,11 @@ from navsvc.fusion.ins.error_state import (
 )
 from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise
 
-# central-difference steps per state: about 0.1 m, 1 mm/s, 2 arc-seconds, tiny biases, 1 cm
+# central-difference steps per state: about 0.1 m, 1 mm/s, 2 arc-seconds, tiny biases, 1 cm,
+# 1 ms, 2 arc-seconds
 STEP = np.array([1.5e-8, 1.5e-8, 0.1, 1e-3, 1e-3, 1e-3, 1e-5, 1e-5, 1e-5,
                  1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5,
-                 1e-2, 1e-2])
+                 1e-2, 1e-2, 1e-3, 1e-5])
 MAX_PITCH_RAD = math.radians(85.0)  # Euler kinematics are singular at ±90°
 MAX_COVARIANCE_STEP_S = 0.02
 MAX_ANGLE_SIGMA_RAD = math.pi
@@ -74,7 +77,8 @@ def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, gps_tau: fl
     out[7] = w[1] * cr - w[2] * sr
     out[8] = (w[1] * sr + w[2] * cr) / math.cos(pitch)
     out[9:N_KFGINS] = -x[9:N_KFGINS] / tau
-    out[N_KFGINS:N_ERR] = -x[N_KFGINS:N_ERR] / gps_tau
+    out[N_KFGINS:LAT] = -x[N_KFGINS:LAT] / gps_tau
+    out[LAT:] = 0.0  # the latency and the mount: constants
     return out
 
 
@@ -82,7 +86,9 @@ def _state_derivative(x: Array, w_ib: Array, f_b: Array, tau: float, gps_tau: fl
 def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, tau: float,
                       gps_tau: float, rotating: float, q_density: Array) -> Array:
     """P through one step: Φ = I + F dt with F = ∂f/∂x by central differences; the sensor
-    noise enters through ∂f/∂(rate, force), which is −∂f/∂(biases) as biases subtract. A long
+    noise enters through ∂f/∂(rate, force), which is −∂f/∂(biases) as biases subtract
+    (``q_density`` in the error state's layout: the angle and velocity random walks where
+    the attitude and velocity errors are). A long
     step (a gap in the IMU data) is taken as sub-steps of ``MAX_COVARIANCE_STEP_S``, as
     Φ = I + F dt only holds while F dt is small. Angle variances are capped: near ±90° pitch
     the Euler kinematics would otherwise grow them without bound."""
@@ -98,9 +104,10 @@ def _propagate_direct(p: Array, x: Array, w_ib: Array, f_b: Array, dt: float, ta
     steps = max(1, math.ceil(dt / MAX_COVARIANCE_STEP_S))
     h = dt / steps
     phi = np.eye(N_ERR) + f_mat * h
-    q = (g * q_density[:6]) @ g.T * h
+    rate_force = np.concatenate((q_density[6:9], q_density[3:6]))
+    q = (g * rate_force) @ g.T * h
     for i in range(9, N_ERR):
-        q[i, i] += q_density[i - 3] * h
+        q[i, i] += q_density[i] * h
     out = p
     for _ in range(steps):
         out = phi @ out @ phi.T + q
@@ -116,13 +123,14 @@ def total_state(s: NavState) -> Array:
     roll, pitch, yaw = dcm_to_euler(s.c_bn)
     return np.concatenate([[s.lat_rad, s.lon_rad, s.h_m], s.v_ned, [roll, pitch, yaw],
                            s.gyro_bias_rps, s.accel_bias_mps2, s.gyro_scale, s.accel_scale,
-                           s.gps_bias_ne_m])
+                           s.gps_bias_ne_m, [s.gps_latency_s, s.mount_pitch_rad]])
 
 
 def nav_state(t: float, x: Array) -> NavState:
     return NavState(t, float(x[0]), float(x[1]), float(x[2]), x[3:6].copy(),
                     euler_to_dcm(x[6], x[7], x[8]), x[9:12].copy(), x[12:15].copy(),
-                    x[15:18].copy(), x[18:21].copy(), x[21:23].copy())
+                    x[15:18].copy(), x[18:21].copy(), x[21:23].copy(), float(x[LAT]),
+                    float(x[MNT]))
 
 
 def _metres_per_unit(s: NavState) -> Array:
@@ -138,17 +146,16 @@ class DirectInsFilter(InsFilter):
                  lever_arm_b_m: Array | None = None,
                  mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
                  earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
-                 gps_bias_tau_s: float = 30.0) -> None:
+                 gps_bias_tau_s: float = 30.0, gps_latency_sigma_s: float = 0.0,
+                 max_gps_latency_s: float = 0.5, mount_sigma_rad: float = 0.0) -> None:
         """``p0`` as for the other modes (position in NED metres, attitude per axis); it is
         carried into the state's units."""
         super().__init__(state, p0, noise, lever_arm_b_m, Integration.DIRECT, mechanisation,
-                         earth, gps_bias_sigma_m, gps_bias_tau_s)
+                         earth, gps_bias_sigma_m, gps_bias_tau_s, gps_latency_sigma_s,
+                         max_gps_latency_s, mount_sigma_rad)
         scale = np.ones(N_ERR)
         scale[POS] = 1.0 / _metres_per_unit(state)
         self.P = self.P * np.outer(scale, scale)
-        self._q_density = np.concatenate([[noise.arw_rad_per_sqrt_s**2] * 3,
-                                          [noise.vrw_mps_per_sqrt_s**2] * 3,
-                                          self._q_density[9:]])
 
     def predict(self, t: float, dtheta: Array, dvel: Array) -> None:
         """One IMU interval: the equations of motion carry the state, their Jacobian the
@@ -177,6 +184,7 @@ class DirectInsFilter(InsFilter):
         if not np.all(np.isfinite(x)):
             raise FloatingPointError("INS correction produced a non-finite state")
         x[7] = float(np.clip(x[7], -MAX_PITCH_RAD, MAX_PITCH_RAD))
+        x[LAT] = float(np.clip(x[LAT], 0.0, self.max_gps_latency_s))
         self.state = nav_state(self.state.t, x)
 
     def _numeric(self, residual: Callable[[Array], Array]) -> tuple[Array, Array]:
@@ -207,8 +215,9 @@ class DirectInsFilter(InsFilter):
 
         return self._numeric(antenna_minus_fix)
 
-    def body_velocity_residual(self, z_b: Array) -> tuple[Array, Array]:
-        return self._numeric(lambda x: euler_to_dcm(x[6], x[7], x[8]).T @ x[3:6] - z_b)
+    def body_velocity_residual(self, z_v: Array) -> tuple[Array, Array]:
+        return self._numeric(lambda x: body_to_vehicle(x[MNT])[0]
+                             @ euler_to_dcm(x[6], x[7], x[8]).T @ x[3:6] - z_v)
 
     def velocity_residual(self, v_ned: Array) -> tuple[Array, Array]:
         return self._numeric(lambda x: x[3:6] - v_ned)
@@ -225,11 +234,14 @@ def ins_filter(state: NavState, p0: Array, noise: ImuNoise, lever_arm_b_m: Array
                integration: Integration = Integration.FEEDBACK,
                mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
                earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
-               gps_bias_tau_s: float = 30.0) -> InsFilter:
+               gps_bias_tau_s: float = 30.0, gps_latency_sigma_s: float = 0.0,
+               max_gps_latency_s: float = 0.5, mount_sigma_rad: float = 0.0) -> InsFilter:
     """The filter of an integration: ``DirectInsFilter`` for ``direct``, else ``InsFilter``.
     ``p0`` is in the error-state units of ``InsFilter`` (position in NED metres)."""
+    beyond_kfgins = (gps_bias_sigma_m, gps_bias_tau_s, gps_latency_sigma_s,
+                     max_gps_latency_s, mount_sigma_rad)
     if integration == Integration.DIRECT:
         return DirectInsFilter(state, p0, noise, lever_arm_b_m, mechanisation, earth,
-                               gps_bias_sigma_m, gps_bias_tau_s)
+                               *beyond_kfgins)
     return InsFilter(state, p0, noise, lever_arm_b_m, integration, mechanisation, earth,
-                     gps_bias_sigma_m, gps_bias_tau_s)
+                     *beyond_kfgins)
