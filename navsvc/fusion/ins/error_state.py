@@ -18,19 +18,19 @@ Seed: Giroux, Gourdeau, Landry 2005 (docs/seed-digest.md); conventions as KF-GIN
   road filter, with its bias states: 0.5 degrees, 1.5 %; considered: 0.84 degrees, 21 %, the
   rest mostly non-line-of-sight runs); estimated, the bias's random walk
   took what the fixes said of the position (the INS ran 20 m off with the bias estimate
-  following it, every fix "accepted"). And the receiver's latency (s), a constant, as in
-  the road filter: a fix is where the antenna was that long before its time stamp, metres
-  back along the track at speed (comma2k19's u-blox: about 0.1 s, 2 m on the highway). It
-  is learnt slowly (a constant along-track offset is the considered bias's as much as the
-  latency's; 300 s of simulated 10 Hz fixes 0.2 s late moved it from the prior's 0.1 s to
-  0.04-0.11 s), so its prior (the road filter's, 0.1 +- 0.1 s) does most of the work and its
-  sigma keeps the along-track doubt honest. And the IMU's mount pitch (a constant): the non-holonomic
-  constraint and the wheel speed hold for the vehicle's axes, not for an IMU pitched in it
-  (comma2k19's phone: about 4 degrees); taken as level, the constraint pitched the attitude
-  until gravity leaked into the velocity (78 m off after a 20 s outage). A yawed mount needs
-  no state: the heading takes it up (the gyro's down axis does not see it; forward
-  acceleration leaks sideways only while the car speeds up or slows down, gravity never).
-  Zero sigmas leave these out, as KF-GINS.
+  following it, every fix "accepted"). And the receiver's latency (s): a fix is where the
+  antenna was that long before its time stamp, metres back along the track at speed
+  (comma2k19's u-blox: about 0.1 s, 2 m on the highway). Considered too, at the road
+  filter's prior (0.1 +- 0.1 s): a constant along-track offset is the bias's as much as the
+  latency's, so fixes hardly teach it (300 s of simulated 10 Hz fixes 0.2 s late took an
+  estimate from 0.1 s to 0.04-0.11 s), and an estimate took up what a wrong heading left
+  (0.43 s on a drive that was 0.14 s late, 7 -> 22 m rms). And the IMU's mount pitch (a
+  constant, estimated): the non-holonomic constraint and the wheel speed hold for the
+  vehicle's axes, not for an IMU pitched in it (comma2k19's phone: about 4 degrees); taken
+  as level, the constraint pitched the attitude until gravity leaked into the velocity (78 m
+  off after a 20 s outage). A yawed mount needs no state: the heading takes it up (the
+  gyro's down axis does not see it; forward acceleration leaks sideways only while the car
+  speeds up or slows down, gravity never). Zero sigmas leave these out, as KF-GINS.
 - Integrations: ``feedback`` (default; each correction goes into the navigation state and the
   biases, and the error state is reset to zero) and ``feedforward`` (the inertial solution runs
   open loop; the output is that solution less the estimated error, which keeps propagating);
@@ -67,7 +67,7 @@ SG, SA = slice(15, 18), slice(18, 21)  # gyro and accelerometer scale factors
 GB = slice(21, 23)  # GNSS position bias, north and east
 LAT = 23  # GNSS latency
 MNT = 24  # the mount's pitch
-CONSIDERED = (21, 22)  # the states every update leaves as they are: the GNSS bias
+CONSIDERED = (21, 22, 23)  # the states every update leaves as they are: GNSS bias, latency
 GATE_FLOOR_M = 0.5
 GATED_BEFORE_SOFT = 3
 
@@ -118,11 +118,11 @@ class InsFilter:
                  mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
                  earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
                  gps_bias_tau_s: float = 30.0, gps_latency_sigma_s: float = 0.0,
-                 max_gps_latency_s: float = 0.5, mount_sigma_rad: float = 0.0) -> None:
+                 mount_sigma_rad: float = 0.0) -> None:
         """``p0``: the covariance of KF-GINS's 21 states; the GNSS bias starts at its
-        steady sigma ``gps_bias_sigma_m`` (:meth:`set_gps_bias_sigma`), the latency at the
-        state's with ``gps_latency_sigma_s``, and is kept within 0 and
-        ``max_gps_latency_s``; the mount's pitch at the state's with ``mount_sigma_rad``."""
+        steady sigma ``gps_bias_sigma_m`` (:meth:`set_gps_bias_sigma`), the latency (the
+        state's) with ``gps_latency_sigma_s``, the mount's pitch (the state's) with
+        ``mount_sigma_rad``."""
         self.state = state  # the inertial solution (open loop in feedforward mode)
         self.P = np.zeros((N_ERR, N_ERR))
         self.P[:N_KFGINS, :N_KFGINS] = p0
@@ -130,7 +130,6 @@ class InsFilter:
         self.P[LAT, LAT] = gps_latency_sigma_s**2
         self.P[MNT, MNT] = mount_sigma_rad**2
         self.gps_bias_tau_s = gps_bias_tau_s
-        self.max_gps_latency_s = max_gps_latency_s
         self.dx = np.zeros(N_ERR)  # estimated error (stays zero in feedback mode)
         self.noise = noise
         self.lever_arm_b_m = np.zeros(3) if lever_arm_b_m is None else lever_arm_b_m
@@ -306,8 +305,6 @@ class InsFilter:
         self.state.accel_bias_mps2 = self.state.accel_bias_mps2 + self.dx[BA]
         self.state.gyro_scale = self.state.gyro_scale + self.dx[SG]
         self.state.accel_scale = self.state.accel_scale + self.dx[SA]
-        self.state.gps_latency_s = min(max(self.state.gps_latency_s - self.dx[LAT], 0.0),
-                                       self.max_gps_latency_s)
         self.state.mount_pitch_rad = self.state.mount_pitch_rad - self.dx[MNT]
         self.dx = np.zeros(N_ERR)
 

@@ -31,10 +31,10 @@ class Mechanisation(enum.Enum):
 @dataclass
 class NavState:
     """Position (lat, lon rad; h m), NED velocity (m/s), attitude C_bn, and the estimates of
-    the IMU's biases and scale factors; the GNSS receiver's bias (north, east m), which
-    the filter considers but does not estimate (it stays at its prior, zero), and its
-    latency (s: a fix is where the antenna was this long before its time stamp); and the
-    mount's pitch (rad: the vehicle's axes pitched this much from the IMU's body axes)."""
+    the IMU's biases and scale factors; the GNSS receiver's bias (north, east m) and
+    latency (s: a fix is where the antenna was this long before its time stamp), which the
+    filter considers but does not estimate (they stay at their priors); and the mount's
+    pitch (rad: the vehicle's axes pitched this much from the IMU's body axes)."""
 
     t: float
     lat_rad: float

@@ -616,7 +616,6 @@ class StrapdownFilter:
                            o.mechanisation, gps_bias_sigma_m=CONSIDERED_BIAS_SHARE * sigma,
                            gps_bias_tau_s=cfg.gps_bias_tau_s,
                            gps_latency_sigma_s=cfg.initial_gps_latency_sigma_s,
-                           max_gps_latency_s=cfg.max_gps_latency_s,
                            mount_sigma_rad=math.radians(o.mount_sigma_deg))
         s.still_f.clear()  # levelled
         s.recent_f.clear()

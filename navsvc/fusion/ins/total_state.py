@@ -147,12 +147,12 @@ class DirectInsFilter(InsFilter):
                  mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
                  earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
                  gps_bias_tau_s: float = 30.0, gps_latency_sigma_s: float = 0.0,
-                 max_gps_latency_s: float = 0.5, mount_sigma_rad: float = 0.0) -> None:
+                 mount_sigma_rad: float = 0.0) -> None:
         """``p0`` as for the other modes (position in NED metres, attitude per axis); it is
         carried into the state's units."""
         super().__init__(state, p0, noise, lever_arm_b_m, Integration.DIRECT, mechanisation,
                          earth, gps_bias_sigma_m, gps_bias_tau_s, gps_latency_sigma_s,
-                         max_gps_latency_s, mount_sigma_rad)
+                         mount_sigma_rad)
         scale = np.ones(N_ERR)
         scale[POS] = 1.0 / _metres_per_unit(state)
         self.P = self.P * np.outer(scale, scale)
@@ -184,7 +184,6 @@ class DirectInsFilter(InsFilter):
         if not np.all(np.isfinite(x)):
             raise FloatingPointError("INS correction produced a non-finite state")
         x[7] = float(np.clip(x[7], -MAX_PITCH_RAD, MAX_PITCH_RAD))
-        x[LAT] = float(np.clip(x[LAT], 0.0, self.max_gps_latency_s))
         self.state = nav_state(self.state.t, x)
 
     def _numeric(self, residual: Callable[[Array], Array]) -> tuple[Array, Array]:
@@ -235,11 +234,10 @@ def ins_filter(state: NavState, p0: Array, noise: ImuNoise, lever_arm_b_m: Array
                mechanisation: Mechanisation = Mechanisation.FIRST_ORDER,
                earth: EarthModel = EarthModel.WGS84, gps_bias_sigma_m: float = 0.0,
                gps_bias_tau_s: float = 30.0, gps_latency_sigma_s: float = 0.0,
-               max_gps_latency_s: float = 0.5, mount_sigma_rad: float = 0.0) -> InsFilter:
+               mount_sigma_rad: float = 0.0) -> InsFilter:
     """The filter of an integration: ``DirectInsFilter`` for ``direct``, else ``InsFilter``.
     ``p0`` is in the error-state units of ``InsFilter`` (position in NED metres)."""
-    beyond_kfgins = (gps_bias_sigma_m, gps_bias_tau_s, gps_latency_sigma_s,
-                     max_gps_latency_s, mount_sigma_rad)
+    beyond_kfgins = (gps_bias_sigma_m, gps_bias_tau_s, gps_latency_sigma_s, mount_sigma_rad)
     if integration == Integration.DIRECT:
         return DirectInsFilter(state, p0, noise, lever_arm_b_m, mechanisation, earth,
                                *beyond_kfgins)
