@@ -154,13 +154,15 @@ def _profile(spec: DriveSpec) -> dict[str, Any]:
             "odometer_reports": spec.odometer_reports,
             "gps_reports_velocity": spec.gps_reports_velocity,
             "gps_reports_hdop": spec.gps_reports_hdop,
+            "gps_reports_height": spec.gps_reports_height,
             "start_standstill_s": round(spec.start_standstill_s, 1),
             "gps_markov_sigma_m": round(e.gps_markov_sigma_m, 2),
             "gps_markov_tau_s": round(e.gps_markov_tau_s, 1),
             "gps_nlos_rate_per_s": round(e.gps_nlos_rate_per_s, 5),
             "gps_latency_s": round(e.gps_latency_s, 3),
             "gyro_turn_on_bias_dps": e.gyro_turn_on_bias_dps,
-            "gyro_scale_error": e.gyro_scale_error, "odometer_scale": e.odometer_scale}
+            "gyro_scale_error": e.gyro_scale_error, "odometer_scale": e.odometer_scale,
+            "imu_mount_deg": [round(a, 2) for a in e.imu_mount_deg]}
 
 
 def harsh_drive(graph: RoadGraph, seed: int, duration: float

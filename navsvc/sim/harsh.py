@@ -7,9 +7,12 @@ the levels seen on real urban drives and in consumer hardware:
 * GPS: correlated error (Gauss-Markov) sigma up to 8 m with a time constant up to 60 s;
   non-line-of-sight runs (a 20-80 m bias for 10-60 s) that the HDOP does not show; course
   noise growing as speed falls and no course or speed below 1 m/s; fixes at 1-10 Hz, 0.1-0.2 s
-  late; on some drives a receiver that sends no course and speed, or no HDOP (UrbanNav, Hsu et
-  al. 2021; u-blox M8 data sheet for latency and course accuracy).
+  late; on some drives a receiver that sends no course and speed, or no HDOP, and most send a
+  height, 1.5 times as wrong as the position (UrbanNav, Hsu et al. 2021; u-blox M8 data sheet
+  for latency and course accuracy).
 * gyro: turn-on bias up to 1 deg/s and scale factor error up to 3 % (MEMS automotive grade).
+* a 6-axis IMU not squared to the car: pitched up to 5 degrees, yawed up to 3 (comma2k19's
+  phone: 3.8 and 0.8).
 * odometer: scale error up to 5 % (tyre wear and pressure); on some drives a wheel-speed
   sensor sending speed only, at 5-50 Hz.
 * the car stands still for a while before it drives off.
@@ -46,6 +49,7 @@ class HarshUrbanRanges:
     gps_rate_hz: tuple[float, ...] = (1.0, 2.0, 5.0, 10.0)  # divisors of the 100 Hz IMU
     gps_velocity_share: float = 0.7  # of receivers that send course and speed
     gps_hdop_share: float = 0.7  # of receivers that send HDOP
+    gps_height_share: float = 0.7  # of receivers that send a height
     gyro_turn_on_bias_dps: tuple[float, float] = (-1.0, 1.0)
     gyro_scale_error: tuple[float, float] = (-0.03, 0.03)
     gyro_noise_dps: tuple[float, float] = (0.05, 0.3)
@@ -53,6 +57,8 @@ class HarshUrbanRanges:
     odometer_rate_hz: tuple[float, ...] = (5.0, 10.0, 20.0, 25.0, 50.0)
     odometer_speed_only_share: float = 0.5
     start_standstill_s: tuple[float, float] = (5.0, 30.0)
+    imu_mount_pitch_deg: tuple[float, float] = (-5.0, 5.0)  # a 6-axis IMU not squared to the
+    imu_mount_yaw_deg: tuple[float, float] = (-3.0, 3.0)  # car (comma2k19's phone: 3.8, 0.8)
     lane_offset_m: tuple[float, float] = (1.0, 3.5)  # right of a two-way road's centre line:
     # the middle of its right lane, on roads of two to four lanes of 2.5-3.5 m
     one_way_offset_m: tuple[float, float] = (-2.0, 2.0)  # any lane of a one-way road
@@ -89,7 +95,7 @@ def harsh_urban_spec(spec: DriveSpec, ranges: HarshUrbanRanges = RANGES) -> Driv
     odometer kind, standstill at the start); everything else of ``spec`` is kept."""
     rng = np.random.default_rng((spec.seed, HARSH_STREAM, 1))
     errors = harsh_urban_errors(rng, ranges)
-    return replace(
+    out = replace(
         spec, errors=errors,
         gps_rate_hz=float(rng.choice(ranges.gps_rate_hz)),
         odometer_rate_hz=float(rng.choice(ranges.odometer_rate_hz)),
@@ -100,3 +106,8 @@ def harsh_urban_spec(spec: DriveSpec, ranges: HarshUrbanRanges = RANGES) -> Driv
         start_standstill_s=_uniform(rng, ranges.start_standstill_s),
         lane_offset_m=_uniform(rng, ranges.lane_offset_m),
         one_way_offset_m=_uniform(rng, ranges.one_way_offset_m))
+    # drawn last, so that every earlier draw is as it was before these were added (only a
+    # 6-axis IMU sees the mount, only the INS reads a height)
+    mount = (_uniform(rng, ranges.imu_mount_pitch_deg), _uniform(rng, ranges.imu_mount_yaw_deg))
+    return replace(out, errors=replace(errors, imu_mount_deg=mount),
+                   gps_reports_height=bool(rng.random() < ranges.gps_height_share))

@@ -89,10 +89,14 @@ class SensorErrors:
     gps_nlos_m: tuple[float, float] = (20.0, 80.0)  # its bias, uniform, random direction
     gps_nlos_duration_s: tuple[float, float] = (10.0, 60.0)
     gps_latency_s: float = 0.0  # the fix at t is where the car was this long before t
+    imu_mount_deg: tuple[float, float] = (0.0, 0.0)  # the 6-axis IMU's pitch (nose up) and
+    # yaw (left) in the car: a phone or box not squared to the car's axes
 
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 HARSH_STREAM = 15  # the second random stream of a seed: np.random.default_rng((seed, 15))
+HEIGHT_STREAM = 16  # the third: the fixes' height error
+VERTICAL_ERROR_RATIO = 1.5  # a fix's height errs this many times as much as north or east
 
 
 @dataclass(frozen=True)
@@ -126,6 +130,7 @@ class DriveSpec:
     odometer_reports: str = "distance"  # "distance" (cumulative, ticks) or "speed" (only)
     gps_reports_velocity: bool = True  # speed and course on each fix
     gps_reports_hdop: bool = True
+    gps_reports_height: bool = False  # a height on each fix (``VERTICAL_ERROR_RATIO``)
     gps_error_replay: GnssErrorRecording | None = None  # real error instead of the synthetic
     gps_error_replay_offset_s: int | None = None  # into the recording; None: from the seed
 
@@ -434,10 +439,23 @@ def _imu_records(truth: _Truth, spec: DriveSpec, rng: np.random.Generator) -> li
         {"t": round(float(truth.t[i]), 4), "kind": "imu", "yaw_rate_dps": float(yaw_left_dps[i]),
          "accel_fwd_mps2": float(fwd[i]), "accel_left_mps2": float(left[i])} for i in range(n)]
     if spec.full_imu:  # the same readings as a 6-axis IMU on a level road (x fwd, y left, z up)
+        car_to_imu = _mount(*e.imu_mount_deg).T
         for r in out:
-            r["gyro_dps"] = [0.0, 0.0, r["yaw_rate_dps"]]
-            r["accel_mps2"] = [r["accel_fwd_mps2"], r["accel_left_mps2"], STANDARD_GRAVITY_MPS2]
+            gyro = car_to_imu @ [0.0, 0.0, r["yaw_rate_dps"]]
+            accel = car_to_imu @ [r["accel_fwd_mps2"], r["accel_left_mps2"],
+                                  STANDARD_GRAVITY_MPS2]
+            r["gyro_dps"], r["accel_mps2"] = gyro.tolist(), accel.tolist()
     return out
+
+
+def _mount(pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    """The IMU's axes in the car's (forward, left, up): yawed left, then pitched nose up."""
+    p, y = math.radians(pitch_deg), math.radians(yaw_deg)
+    yaw = np.array([[math.cos(y), -math.sin(y), 0.0], [math.sin(y), math.cos(y), 0.0],
+                    [0.0, 0.0, 1.0]])
+    nose_up = np.array([[math.cos(p), 0.0, -math.sin(p)], [0.0, 1.0, 0.0],
+                        [math.sin(p), 0.0, math.cos(p)]])
+    return yaw @ nose_up
 
 
 def _odometer_records(truth: _Truth, spec: DriveSpec,
@@ -512,10 +530,14 @@ def _gps_records(graph: RoadGraph, path: _Path, truth: _Truth, spec: DriveSpec,
     nlos, nlos_until = np.zeros(2), -1.0
     fixes = _every(truth, spec.gps_rate_hz, spec.imu_rate_hz)
     replayed = _replayed_error(spec, truth.t[fixes], extra)
+    heights = np.random.default_rng((spec.seed, HEIGHT_STREAM))
+    up_sigma_m = VERTICAL_ERROR_RATIO * e.gps_markov_sigma_m
+    up_m = heights.normal(0.0, up_sigma_m)
     out = []
     for n, i in enumerate(fixes):
         t = float(truth.t[i])
         markov = phi * markov + rng.normal(0.0, e.gps_markov_sigma_m * math.sqrt(1 - phi ** 2), 2)
+        up_m = phi * up_m + heights.normal(0.0, up_sigma_m * math.sqrt(1 - phi ** 2))
         if t >= jump_until and rng.random() < e.gps_multipath_rate_per_s * dt:
             jump, jump_until = _random_offset(rng, e.gps_multipath_m,
                                               e.gps_multipath_duration_s, t)
@@ -532,6 +554,9 @@ def _gps_records(graph: RoadGraph, path: _Path, truth: _Truth, spec: DriveSpec,
                 continue
             err = replayed[1][n]
         out.append(_gps_record(graph, truth, i, err, spec, rng, t < jump_until))
+        if spec.gps_reports_height:  # a level world at height zero
+            out[-1]["alt_m"] = up_m + heights.normal(
+                0.0, VERTICAL_ERROR_RATIO * e.gps_white_sigma_m)
     return out
 
 

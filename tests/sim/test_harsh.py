@@ -46,6 +46,8 @@ def test_rates_receiver_and_odometer_within_their_ranges(seed: int) -> None:
     assert 5.0 <= spec.odometer_rate_hz <= 50.0
     assert spec.odometer_reports in ("distance", "speed")
     assert _within(spec.start_standstill_s, RANGES.start_standstill_s)
+    pitch, yaw = spec.errors.imu_mount_deg
+    assert abs(pitch) <= 5.0 and abs(yaw) <= 3.0
     assert 1.0 <= spec.lane_offset_m <= 3.5 and abs(spec.one_way_offset_m) <= 2.0
 
 
@@ -62,9 +64,10 @@ def test_profiles_vary_between_seeds() -> None:
     assert len({s.errors.gps_markov_sigma_m for s in specs}) == 200
     shares = {"speed": np.mean([s.odometer_reports == "speed" for s in specs]),
               "velocity": np.mean([s.gps_reports_velocity for s in specs]),
-              "hdop": np.mean([s.gps_reports_hdop for s in specs])}
+              "hdop": np.mean([s.gps_reports_hdop for s in specs]),
+              "height": np.mean([s.gps_reports_height for s in specs])}
     assert 0.35 < shares["speed"] < 0.65 and 0.55 < shares["velocity"] < 0.85
-    assert 0.55 < shares["hdop"] < 0.85
+    assert 0.55 < shares["hdop"] < 0.85 and 0.55 < shares["height"] < 0.85
     assert len({s.gps_rate_hz for s in specs}) == len(RANGES.gps_rate_hz)
 
 

@@ -123,6 +123,37 @@ def test_receiver_without_velocity_or_hdop(sample_graph: RoadGraph) -> None:
     assert gps and not any({"speed_mps", "heading_deg", "hdop"} & set(r) for r in gps)
 
 
+def test_heights_err_more_than_positions_and_change_nothing_else(
+        sample_graph: RoadGraph) -> None:
+    """A receiver that sends a height: its error is 1.5 times the horizontal one, drawn from
+    a stream of its own (every other record as without it)."""
+    spec = DriveSpec(duration_s=300.0, seed=4, tunnels_block_gps=False)
+    plain = simulate_drive(sample_graph, spec)
+    with_height = simulate_drive(sample_graph, replace(spec, gps_reports_height=True))
+    assert [{k: v for k, v in r.items() if k != "alt_m"} for r in with_height] == plain
+    heights = np.array([r["alt_m"] for r in with_height if r["kind"] == "gps"])
+    e = spec.errors
+    expected = 1.5 * math.hypot(e.gps_markov_sigma_m, e.gps_white_sigma_m)
+    assert 0.5 * expected < np.std(heights) < 1.5 * expected
+
+
+def test_a_pitched_and_yawed_imu_sees_gravity_and_the_turns_turned(
+        sample_graph: RoadGraph) -> None:
+    """The 6-axis fields of an IMU mounted 4 degrees nose up and 2 left: at rest gravity
+    reads forward by sin(4 degrees); the single yaw-rate gyro of the other configurations
+    is not the 6-axis IMU and keeps its reading."""
+    spec = DriveSpec(duration_s=60.0, seed=3, full_imu=True, start_standstill_s=5.0)
+    level = [r for r in simulate_drive(sample_graph, spec) if r["kind"] == "imu"]
+    mounted = [r for r in simulate_drive(sample_graph, replace(
+        spec, errors=replace(spec.errors, imu_mount_deg=(4.0, 2.0)))) if r["kind"] == "imu"]
+    assert [r["yaw_rate_dps"] for r in mounted] == [r["yaw_rate_dps"] for r in level]
+    forward, _, up = mounted[0]["accel_mps2"]
+    assert math.degrees(math.atan2(forward, up)) == pytest.approx(4.0, abs=0.5)
+    for a, b in zip(level[::50], mounted[::50]):
+        assert np.linalg.norm(a["gyro_dps"]) == pytest.approx(np.linalg.norm(b["gyro_dps"]))
+        assert np.linalg.norm(a["accel_mps2"]) == pytest.approx(np.linalg.norm(b["accel_mps2"]))
+
+
 def _runs(t: np.ndarray, err: np.ndarray) -> list[tuple[float, float, float]]:
     """(start, length in fix intervals, size) of each stretch of one constant non-zero bias."""
     runs: list[tuple[float, float, float]] = []
