@@ -1,6 +1,7 @@
 """Attitude of the strapdown INS (pure): skew matrices, rotation vectors, direction-cosine
 matrices ``C_bn`` (body forward-right-down to north-east-down) and Euler angles, coarse
-levelling. Conventions as KF-GINS (Giroux, Gourdeau, Landry 2005; docs/seed-digest.md).
+levelling, the mount pitch between the IMU's axes and the vehicle's. Conventions as KF-GINS
+(Giroux, Gourdeau, Landry 2005; docs/seed-digest.md).
 """
 
 from __future__ import annotations
@@ -54,7 +55,6 @@ def level_from_accel(mean_f_b: Array) -> tuple[float, float]:
     """Roll and pitch from the mean specific force of a static interval (coarse levelling)."""
     fx, fy, fz = mean_f_b
     return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
-
 
 
 def body_to_vehicle(mount_pitch_rad: float) -> tuple[Array, Array]:
