@@ -84,3 +84,15 @@ def test_strapdown_learns_how_the_phone_is_pitched_in_the_car() -> None:
     truth_deg = _pitch_of_the_track_in_the_camera_deg()
     assert 3.0 < truth_deg < 5.0
     assert abs(math.degrees(ins.state.mount_pitch_rad) - truth_deg) < 1.0
+
+
+def test_strapdown_weighs_the_cars_wheel_speed_as_one_a_second() -> None:
+    """The CAN wheel speed comes at 89 Hz and its error changes slowly; taken as 89
+    independent speeds a second it made the INS with wheel speed worse than the 1 Hz fixes
+    (1.59 m against 1.52 m), and worse than without it (0.91 m)."""
+    drive = read_segment(DATA / "comma2k19", Gnss(1.0))
+    session = VehicleSession(SessionConfig(FusionConfig(sensors=SensorConfig.STRAPDOWN)))
+    result = session.add_records([r for r in drive if r["kind"] in {"imu", "odometer", "gps"}])
+    assert not result.rejections and session.frame is not None
+    e = evaluate(drive, [position_json(p, session.frame) for p in result.positions])
+    assert e.fused.rms_m < e.raw_gps.rms_m
