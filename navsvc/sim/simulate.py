@@ -455,7 +455,8 @@ def _mount(pitch_deg: float, yaw_deg: float) -> np.ndarray:
                     [0.0, 0.0, 1.0]])
     nose_up = np.array([[math.cos(p), 0.0, -math.sin(p)], [0.0, 1.0, 0.0],
                         [math.sin(p), 0.0, math.cos(p)]])
-    return yaw @ nose_up
+    mount: np.ndarray = yaw @ nose_up
+    return mount
 
 
 def _odometer_records(truth: _Truth, spec: DriveSpec,
