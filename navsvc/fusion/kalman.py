@@ -116,16 +116,23 @@ def correct_compiled(x: Array, P: Array, z: Array, h: Array, H: Array, R: Array,
                      max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover
     """:func:`correct` for compiled callers (float64 arrays)."""
     y = z - h
+    K, nis = gain_and_nis(P, H, R, y)
+    if not nis <= max_nis:
+        return x, P, nis
+    x_new, P_new = joseph(x, P, y, H, R, K)
+    return x_new, P_new, nis
+
+
+@jit
+def gain_and_nis(P: Array, H: Array, R: Array, y: Array) -> tuple[Array, float]:  # pragma: no cover
+    """The Kalman gain ``P Hᵀ S⁻¹`` and the innovation's NIS ``yᵀ S⁻¹ y``."""
     PHt = matmul(P, H.T)
     S_inv = inverse(matmul(H, PHt) + R)
     nis = 0.0
     for i in range(len(y)):
         for j in range(len(y)):
             nis += y[i] * S_inv[i, j] * y[j]
-    if not nis <= max_nis:
-        return x, P, nis
-    x_new, P_new = joseph(x, P, y, H, R, matmul(PHt, S_inv))
-    return x_new, P_new, nis
+    return matmul(PHt, S_inv), nis
 
 
 @jit
@@ -166,15 +173,9 @@ def correct_leaving_compiled(x: Array, P: Array, y: Array, H: Array, R: Array, k
                              max_nis: float) -> tuple[Array, Array, float]:  # pragma: no cover
     """:func:`correct_leaving` for compiled callers: innovation ``y``; ``keep`` 0 for the
     states left as they are (states past its end are changed)."""
-    PHt = matmul(P, H.T)
-    S_inv = inverse(matmul(H, PHt) + R)
-    nis = 0.0
-    for i in range(len(y)):
-        for j in range(len(y)):
-            nis += y[i] * S_inv[i, j] * y[j]
+    K, nis = gain_and_nis(P, H, R, y)
     if not nis <= max_nis:
         return x, P, nis
-    K = matmul(PHt, S_inv)
     for i in range(len(keep)):
         if keep[i] == 0.0:
             K[i, :] = 0.0
