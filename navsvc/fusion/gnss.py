@@ -49,6 +49,12 @@ def gps_problem(fix: GpsFix, min_sats: int, max_hdop: float) -> str | None:
 MIN_SIGMA_M = 0.01  # no receiver is surer than a centimetre (RTK: about 2 cm)
 
 
+def course_sigma_rad(speed_mps: float, velocity_sigma_mps: float) -> float:
+    """1-sigma error of a receiver's course at this speed: its velocity's error across the
+    track over the speed (it grows as the car slows), never below 2 degrees."""
+    return max(math.radians(2.0), math.atan2(velocity_sigma_mps, speed_mps))
+
+
 def gps_sigma_m(fix: GpsFix, uere_m: float, default_sigma_m: float) -> float:
     """1-σ horizontal error of a fix: its own accuracy, else HDOP × UERE, else by fix type
     (RTK, DGPS), else the conservative ``default_sigma_m``; never below ``MIN_SIGMA_M`` (a

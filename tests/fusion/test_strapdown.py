@@ -350,3 +350,51 @@ def test_without_fixes_the_sigma_along_the_drive_holds_the_wheels_scale() -> Non
     assert along >= 0.98 * FusionConfig().initial_odo_scale_sigma * driven_m > 25.0
     calibrated_along, _ = sigma_along_at_end_of_gap(receiver_speed=True)
     assert calibrated_along < 0.5 * along
+
+
+@pytest.mark.parametrize("speed_mps", [4.0, 15.0])
+def test_a_heading_from_the_gps_course_is_as_sure_as_a_course_at_that_speed(
+        speed_mps: float) -> None:
+    """The INS aligns from a course with the road filter's sigma for a course at that speed
+    (the receiver's velocity error across the track over the speed, at least 2 degrees), not
+    a fixed 10 degrees: too wide on the highway, too narrow at walking pace."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    ins.apply(ImuSample(0.0, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=(0.0, 0.0, 9.81)))
+    lon, lat = frame.to_wgs84(0.0, 0.0)
+    out = ins.apply(GpsFix(0.0, lat_deg=lat, lon_deg=lon, accuracy_m=2.0, speed_mps=speed_mps,
+                           heading_rad=0.0))
+    assert out and out[0].initialized
+    expected = max(math.radians(2.0), math.atan2(0.5, speed_mps))
+    assert out[0].heading_sigma_rad == pytest.approx(expected, rel=1e-6)
+
+
+def test_the_gyro_bias_is_taken_from_the_standstill_before_alignment() -> None:
+    """A car stands 5 s with a gyro that reads 0.8 deg/s of yaw rate (a MEMS gyro's turn-on
+    bias can be a degree a second; the INS's prior sigma is half that), then drives north
+    with a GPS course: the INS starts with that bias, surely, and its heading does not turn
+    in the 10 s that follow without fixes. Starting from a zero bias, the heading turned 8
+    degrees in those 10 s. The half second in which it turns at 30 deg/s before the wheels
+    say it moves (their speed comes over a window) is no standstill's."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    bias_rps = math.radians(0.8)
+    gyro = (0.0, 0.0, bias_rps)  # FLU: turning left, as a car does not
+    level = (0.0, 0.0, 9.81)
+    estimates: list[FusedEstimate] = []
+    for k in range(1501):
+        t = 0.01 * k
+        if k % 10 == 0:
+            ins.apply(OdometerSample(t, speed_mps=0.0 if t < 5.0 else 10.0))
+        if k == 510:
+            lon, lat = frame.to_wgs84(0.0, 0.0)
+            ins.apply(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=2.0, speed_mps=10.0,
+                             heading_rad=0.0))
+            assert ins.ins is not None
+            started = ins.ins.state.gyro_bias_rps.copy(), math.sqrt(ins.ins.P[11, 11])
+        turning = (0.0, 0.0, bias_rps + math.radians(30.0)) if 4.5 <= t < 5.0 else gyro
+        estimates += ins.apply(ImuSample(t, gyro_rps=turning, accel_mps2=level))
+    bias, sigma = started
+    assert abs(-bias[2] - bias_rps) < math.radians(0.02) and sigma < math.radians(0.05)
+    headings = [math.degrees(e.heading_rad) for e in estimates if e.initialized]
+    assert max(abs((h + 180.0) % 360.0 - 180.0) for h in headings) < 1.0, headings

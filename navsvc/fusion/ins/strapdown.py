@@ -12,10 +12,12 @@ vehicle through GPS outages.
 
 Alignment: roll and pitch from the mean specific force while the vehicle stands still (coarse
 levelling; if no sensor said it stood, from the last second's mean: a tilted mount is better
-levelled so than taken as level), heading from the GPS course once it moves faster than
-``align_min_speed_mps``; from a receiver that sends no course, from the fixes over a straight
-baseline driven, as the road filter starts (:func:`navsvc.fusion.gnss.fit_track` with an
-odometer, else the bearing between the baseline's ends). Until then no estimate is produced.
+levelled so than taken as level), the gyro's bias from its mean rate over the same
+standstill, heading from the GPS course once it moves faster than ``align_min_speed_mps``
+(with the road filter's sigma for a course at that speed); from a receiver that sends no
+course, from the fixes over a straight baseline driven, as the road filter starts
+(:func:`navsvc.fusion.gnss.fit_track` with an odometer, else the bearing between the
+baseline's ends). Until then no estimate is produced.
 Standing is what the wheels say, or without them the GPS speed. IMU rates are held over each
 sample interval (rectangular increments); the IMU mounting rotation is an option.
 
@@ -45,6 +47,7 @@ from navsvc.fusion.gnss import (
     MapSeenError,
     RoadDistance,
     baseline_heading,
+    course_sigma_rad,
     disagreement_cov_m2,
     fit_track,
     gps_problem,
@@ -54,6 +57,7 @@ from navsvc.fusion.gnss import (
     unstarted_estimate,
 )
 from navsvc.fusion.ins.attitude import dcm_to_euler, euler_to_dcm, level_from_accel
+from navsvc.fusion.ins.earth import EARTH_RATE_RPS
 from navsvc.fusion.ins.error_state import GnssFix, ImuNoise, InsFilter, Integration
 from navsvc.fusion.ins.measurements import (
     AcrossRoad,
@@ -72,6 +76,10 @@ FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 NO_HEIGHT_SIGMA_M = 50.0
 ODO_SCALE_GAIN = 0.05
 ODO_RATIO_SIGMA = 0.03  # noise of one ratio of GPS speed to wheel speed (both >= 5 m/s)
+STILL_GYRO_MIN_S = 1.0  # standing this long before alignment gives the gyro's bias
+STILL_MAX_RATE_RPS = math.radians(3.0)  # faster, the car turns (a turn-on bias is smaller):
+# the wheels' speed, over its window, still said "standing" as a car pulled away through a
+# sharp turn, and the bias came out 0.75 deg/s off (Andorra 200112 of the validate split)
 WHEEL_SPEEDS_INDEPENDENT_S = 1.0  # wheel speeds closer together than this err alike
 CONSIDERED_BIAS_SHARE = 0.7  # of a fix's sigma, the part the INS's considered GNSS bias
 # states hold (the road filter's gps_bias_share, 0.85, is for bias states it estimates). A
@@ -105,9 +113,10 @@ class StrapdownOptions:
     align_min_speed_mps: float = 3.0
     still_speed_mps: float = 0.3
     level_window: int = 100  # IMU samples averaged for levelling
-    initial_sigmas: tuple[float, ...] = (  # position m, velocity m/s, roll/pitch/yaw rad,
-        5.0, 0.5, math.radians(2.0), math.radians(10.0),  # gyro bias rad/s, accel bias m/s²,
-        math.radians(0.5), 0.1, 3e-3)  # scale factors (gyro and accelerometer)
+    initial_sigmas: tuple[float, ...] = (  # position m, velocity m/s, roll and pitch rad,
+        5.0, 0.5, math.radians(2.0),  # gyro bias rad/s (without a standstill to take it
+        math.radians(0.5), 0.1, 3e-3)  # from), accel bias m/s², scale factors (gyro and
+    # accelerometer); the heading's comes with it (the course's or the baseline's)
 
     def __post_init__(self) -> None:
         if self.align_min_speed_mps <= 0.0:
@@ -121,6 +130,9 @@ class StrapdownState:
     ins: InsFilter | None = None  # None until aligned
     still_f: deque[Array] = field(default_factory=deque)  # specific force while standing
     recent_f: deque[Array] = field(default_factory=deque)  # ... and lately, standing or not
+    still_turn: tuple[float, Array, float] = (0.0, np.zeros(3), 0.0)  # before alignment,
+    # the seconds stood, the gyro's integral over them (rad, FRD: its turn-on bias) and the
+    # time of the latest
     rates: tuple[Array, Array] | None = None  # last (gyro rad/s, accel m/s²), FRD
     t: float | None = None
     last_output_t: float | None = None
@@ -245,7 +257,10 @@ class StrapdownFilter:
             if s.standing is True:
                 s.still_f.append(accel)
             if s.t is not None and p.t > s.t:
-                s.turned_rad += float(gyro[2]) * (p.t - s.t)
+                dt = p.t - s.t
+                if s.standing is True and float(np.abs(gyro).max()) < STILL_MAX_RATE_RPS:
+                    s.still_turn = (s.still_turn[0] + dt, s.still_turn[1] + gyro * dt, p.t)
+                s.turned_rad += float(gyro[2] - self._still_gyro_bias(p.t)[0][2]) * dt
         s.rates, s.t = (gyro, accel), p.t
         if s.ins is not None and s.last_output_t is not None and \
                 p.t - s.last_output_t >= self.config.output_interval_s:
@@ -551,7 +566,8 @@ class StrapdownFilter:
         o, s = self.options, self.state
         if fix.speed_mps is not None and fix.heading_rad is not None and \
                 fix.speed_mps >= o.align_min_speed_mps:
-            self._align(fix, (fix.heading_rad, o.initial_sigmas[3]),
+            course_sigma = course_sigma_rad(fix.speed_mps, self.config.gps_velocity_sigma_mps)
+            self._align(fix, (fix.heading_rad, course_sigma),
                         (fix.speed_mps, o.initial_sigmas[1]), "heading from the GPS course")
             return
         found = None if s.gps_velocity_seen else self._baseline_heading(fix)
@@ -609,15 +625,17 @@ class StrapdownFilter:
         yaw, yaw_sigma = heading
         sigma = self._sigma_m(fix)
         sd = o.initial_sigmas
+        gyro_bias, gyro_bias_sigma = self._still_gyro_bias(fix.t)
         p0 = np.diag(np.array([max(sd[0], sigma)] * 2 + [2.0 * max(sd[0], sigma)]
-                              + [speed[1]] * 3 + [sd[2], sd[2], yaw_sigma] + [sd[4]] * 3
-                              + [sd[5]] * 3 + [sd[6]] * 6) ** 2)
+                              + [speed[1]] * 3 + [sd[2], sd[2], yaw_sigma]
+                              + [gyro_bias_sigma] * 3 + [sd[4]] * 3 + [sd[5]] * 6) ** 2)
         s.height_m = fix.alt_m if fix.alt_m is not None else 0.0
         cfg = self.config
         state = NavState(fix.t, math.radians(fix.lat_deg), math.radians(fix.lon_deg),
                          s.height_m,
                          speed[0] * np.array([math.cos(yaw), math.sin(yaw), 0.0]),
-                         euler_to_dcm(roll, pitch, yaw), gps_latency_s=cfg.initial_gps_latency_s)
+                         euler_to_dcm(roll, pitch, yaw), gps_latency_s=cfg.initial_gps_latency_s,
+                         gyro_bias_rps=gyro_bias)
         s.ins = ins_filter(state, p0, o.noise, np.array(o.lever_arm_m), o.integration,
                            o.mechanisation, gps_bias_sigma_m=CONSIDERED_BIAS_SHARE * sigma,
                            gps_bias_tau_s=cfg.gps_bias_tau_s,
@@ -628,6 +646,22 @@ class StrapdownFilter:
         s.baseline = ()
         s.last_output_t = fix.t
         s.gps = GpsUsage(True, 1.0, f"aligned: level from the IMU, {how}")
+
+    def _still_gyro_bias(self, t: float) -> tuple[Array, float]:
+        """The gyro's bias (rad/s, FRD) and its sigma at ``t``, before the INS starts: the
+        mean rate over the seconds the car stood (a coarse alignment's; the earth's rate, at
+        most 0.004 deg/s, left in it, and the bias's own wander since), else zero at the
+        prior's sigma. A MEMS gyro's turn-on bias can be a degree a second, twice the
+        prior's sigma: it turned the heading 20 degrees in the first 25 s of an outage
+        (gh-issue-70 200073 of the validate split)."""
+        stood_s, turn, last_t = self.state.still_turn
+        prior, noise = self.options.initial_sigmas[3], self.options.noise
+        if stood_s < STILL_GYRO_MIN_S:
+            return np.zeros(3), prior
+        wander = 1.0 - math.exp(-2.0 * max(t - last_t, 0.0) / noise.bias_corr_time_s)
+        sigma = math.sqrt(noise.arw_rad_per_sqrt_s ** 2 / stood_s + EARTH_RATE_RPS ** 2
+                          + noise.gyro_bias_sigma_rps ** 2 * wander)
+        return turn / stood_s, min(sigma, prior)
 
     def _unstarted_estimate(self, fix: GpsFix) -> FusedEstimate:
         """The fix as the position while the heading is unknown

@@ -32,6 +32,7 @@ from navsvc.fusion.gnss import (
     RoadDistance,
     TrackFit,
     baseline_heading,
+    course_sigma_rad,
     disagreement_cov_m2,
     fit_track,
     gps_problem,
@@ -839,8 +840,7 @@ class RoadFilter:
         cfg, speed = self.config, fix.speed_mps or 0.0
         if fix.heading_rad is None or speed < cfg.min_speed_for_gps_heading_mps:
             return None
-        sigma = max(math.radians(2.0), math.atan2(cfg.gps_velocity_sigma_mps, speed))
-        return fix.heading_rad, sigma ** 2
+        return fix.heading_rad, course_sigma_rad(speed, cfg.gps_velocity_sigma_mps) ** 2
 
     def _reset_from_gps(self, fix: GpsFix, east: float, north: float,
                         heading: tuple[float, float] | None,
