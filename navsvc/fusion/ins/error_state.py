@@ -52,7 +52,7 @@ import numpy as np
 
 from navsvc.fusion import kalman
 from navsvc.fusion._jit import Array, jit
-from navsvc.fusion.ins.attitude import body_to_vehicle, dcm_to_euler, skew
+from navsvc.fusion.ins.attitude import body_to_vehicle, dcm_to_euler, rotation, skew
 from navsvc.fusion.ins.earth import EARTH_RATE_RPS, EarthModel, nav_rates, radii_m
 from navsvc.fusion.ins.measurements import BodyVelocity, GnssPosition
 from navsvc.fusion.ins.mechanisation import Mechanisation, NavState, mechanise, sample_problem
@@ -355,7 +355,7 @@ def corrected(s: NavState, dx: Array) -> NavState:
     out.lon_rad = s.lon_rad - dx[1] / ((rn + s.h_m) * math.cos(s.lat_rad))
     out.h_m = s.h_m + dx[2]
     out.v_ned = s.v_ned - dx[VEL]
-    out.c_bn = (np.eye(3) - skew(dx[ATT])) @ s.c_bn
+    out.c_bn = rotation(-dx[ATT]) @ s.c_bn
     out.gps_bias_ne_m = s.gps_bias_ne_m - dx[GB]
     if not (np.isfinite(out.lat_rad) and np.all(np.isfinite(out.c_bn))):
         raise FloatingPointError("INS correction produced a non-finite state")
