@@ -398,3 +398,29 @@ def test_the_gyro_bias_is_taken_from_the_standstill_before_alignment() -> None:
     assert abs(-bias[2] - bias_rps) < math.radians(0.02) and sigma < math.radians(0.05)
     headings = [math.degrees(e.heading_rad) for e in estimates if e.initialized]
     assert max(abs((h + 180.0) % 360.0 - 180.0) for h in headings) < 1.0, headings
+
+
+def test_the_constraint_on_a_fresh_alignment_does_not_make_its_heading_surer() -> None:
+    """The INS starts with its velocity along the heading it was given, so the velocity's
+    direction is as unsure as that heading and errs with it. The non-holonomic constraint (no
+    sideways motion) then says nothing of the heading: a heading from a short baseline of
+    fixes keeps its sigma for the two seconds without fixes that follow. With the velocity
+    taken as independent of the heading, the constraint read the velocity's 0.5 m/s sigma as
+    the heading's (12 degrees went to 3 within a second, with no fix in between)."""
+    frame = LocalFrame.for_point(7.42, 43.73)
+    ins = StrapdownFilter(FusionConfig(sensors=SensorConfig.STRAPDOWN), frame)
+    level = (0.0, 0.0, 9.81)  # FLU, at constant speed
+    estimates: list[FusedEstimate] = []
+    for k in range(601):  # north at 10 m/s; a fix a second without course or speed
+        t = 0.01 * k
+        if k % 10 == 0:
+            ins.apply(OdometerSample(t, speed_mps=10.0))
+        if k % 100 == 0 and ins.ins is None:
+            lon, lat = frame.to_wgs84(0.0, 10.0 * t)
+            estimates += ins.apply(GpsFix(t, lat_deg=lat, lon_deg=lon, accuracy_m=3.0))
+        estimates += ins.apply(ImuSample(t, gyro_rps=(0.0, 0.0, 0.0), accel_mps2=level))
+    aligned = [e for e in estimates if e.initialized]
+    assert len(aligned) >= 3
+    assert aligned[0].heading_sigma_rad > math.radians(5.0)  # a short baseline's
+    assert all(e.heading_sigma_rad > 0.9 * aligned[0].heading_sigma_rad for e in aligned), \
+        [math.degrees(e.heading_sigma_rad) for e in aligned]
